@@ -1,0 +1,73 @@
+"""Inputs and outputs of contact-implicit dynamics learning (physible geometry and inertia)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from service.mesh import Mesh
+from service.session.types import Friction
+
+
+@dataclass(frozen=True)
+class ContactInputs:
+    """Trajectories in the PLL state layout, world frame with the table plane at ``table_height``.
+
+    ``states[k]`` is (T_k,13): ``qw qx qy qz | x y z | wx wy wz (body) | vx vy vz (world)`` with
+    backward-difference velocities (``p[t+1] = p[t] + dt v[t+1]``).
+    """
+
+    dt: float
+    states: tuple[np.ndarray, ...]
+    ee_p_W: tuple[np.ndarray, ...] | None  # (T_k,3) sphere centre per step, or None (no robot)
+    ee_v_W: tuple[np.ndarray, ...] | None  # (T_k,3) sphere centre velocity (backward differences)
+    ee_radius: float
+    table_height: float
+    friction: Friction
+    mass: float  # kg (declared or default)
+    mass_declared: bool
+    visible_points_O: np.ndarray | None  # (K,3) visible set V, None = no vision term
+    init_vertices_O: np.ndarray | None  # (V,3) initial geometry guess (e.g. hull of the visible mesh)
+
+
+@dataclass(frozen=True)
+class StepResiduals:
+    """Per-transition dynamics residuals at the learned optimum (one row per transition)."""
+
+    traj: np.ndarray  # (S,) trajectory index
+    step: np.ndarray  # (S,) index k of the transition k -> k+1
+    dv_observed: np.ndarray  # (S,6) observed [ω (body); v (world)] change minus gravity
+    dv_explained: np.ndarray  # (S,6) change explained by the optimal contact impulses
+    residual: np.ndarray  # (S,6) dv_observed - dv_explained
+    phi_table: np.ndarray  # (S,) min signed gap object-table, m
+    phi_ee: np.ndarray  # (S,) signed gap object-sphere, m (inf without robot)
+    impulse_table: np.ndarray  # (S,) total normal impulse from the table, N s
+    impulse_ee: np.ndarray  # (S,) normal impulse from the sphere, N s
+
+
+@dataclass(frozen=True)
+class ContactOutputs:
+    physible_mesh: Mesh  # convex geometry in O
+    mass: float
+    com_O: np.ndarray  # (3,)
+    inertia_O: np.ndarray  # (3,3) about the CoM
+    friction: Friction
+    physible_points_O: np.ndarray  # (P,3) support points with top-30 % normal impulse
+    physible_normals_O: np.ndarray  # (P,3) their outward directions
+    residuals: StepResiduals
+    loss_history: np.ndarray  # (epochs,)
+    support_directions: np.ndarray  # (D,3) unit directions used for mesh export
+    support_points: np.ndarray  # (D,3) support points s(d) in O
+    metrics: dict[str, float] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ContactConfig:
+    """Settings of contact-implicit dynamics learning. ``fast()`` is the reduced preset used by tests."""
+
+    seed: int = 0
+
+    @classmethod
+    def fast(cls) -> "ContactConfig":
+        return cls()
