@@ -1,0 +1,64 @@
+"""Values of the rollout simulator (frames and units as in docs/conventions.md)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Settings of one open-loop rollout.
+
+    ``robot_mode``:
+    - ``"kinematic"``: the sphere follows the given path with a very stiff, critically damped,
+      gravity-compensated PD (natural frequency ``follow_omega``), i.e. it replays the recorded path;
+    - ``"impedance"``: the path is a command; a Cartesian spring–damper of stiffness
+      ``impedance_stiffness`` (critically damped for ``ee_mass``) pulls the sphere toward the command,
+      after an optional first-order low-pass of the command (``cmd_lowpass_tau``), so contact forces
+      deflect the sphere as they deflect a real impedance-controlled arm.
+    """
+
+    dt: float = 1.0 / 1000.0  # s, simulator step
+    solver_iterations: int = 50
+    robot_mode: str = "kinematic"  # "kinematic" | "impedance"
+    ee_mass: float = 3.0  # kg, effective mass of the end effector
+    follow_omega: float = 150.0  # rad/s, kinematic following bandwidth
+    impedance_stiffness: float = 1500.0  # N/m
+    impedance_damping_ratio: float = 1.0
+    cmd_lowpass_tau: float = 0.0  # s, 0 = no filter
+    max_ee_force: float = 400.0  # N, clamp of the actuator force
+    contact_force_threshold: float = 1e-3  # N, robot-object contact counts as active above this
+    resolve_initial_penetration: bool = True  # lift the object out of the table at t0 if needed
+    collision_margin: float = 0.0005  # m, Bullet convex margin of the object
+    table_friction_base: float = 1.0  # friction given to the object itself; pairs are products in Bullet
+
+    @classmethod
+    def fast(cls) -> "SimConfig":
+        return cls(dt=1.0 / 480.0, solver_iterations=30)
+
+
+@dataclass(frozen=True)
+class RobotPath:
+    """End-effector sphere-centre path in W: ``t`` (M,) s increasing, ``p_WE`` (M,3) m."""
+
+    t: np.ndarray
+    p_WE: np.ndarray
+    commanded: bool = False  # True when p_WE are commands (cmd_*) rather than measured positions
+
+
+@dataclass(frozen=True)
+class RolloutResult:
+    """A simulated trajectory sampled at the requested times (N samples)."""
+
+    t: np.ndarray  # (N,) s
+    X_WO: np.ndarray  # (N,4,4) simulated object pose
+    v_WO_W: np.ndarray  # (N,3) velocity of O's origin in W
+    w_WO_O: np.ndarray  # (N,3) angular velocity in O axes
+    p_WE: np.ndarray  # (N,3) simulated sphere centre
+    contact_active: np.ndarray  # (N,) bool: robot-object normal force above threshold since the previous sample
+    robot_force: np.ndarray  # (N,) N, largest robot-object normal force since the previous sample
+    table_contact: np.ndarray  # (N,) bool: object touching the table at the sample
+    max_table_penetration: float  # m, deepest object-table penetration over the whole rollout
+    lifted_at_start: float  # m, how far the initial pose was lifted out of the table
