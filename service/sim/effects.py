@@ -7,14 +7,16 @@ without touching this module by passing ``{**EFFECTS, "name": EffectSpec(...)}``
 :func:`service.sim.rollout`.
 
 Built-in effects (units SI):
-- ``restitution`` e ∈ [0, 1]: object–table coefficient of restitution (robot contact stays inelastic).
-- ``linear_damping``, ``angular_damping`` (1/s): velocity decay ``v ← v (1 − d)^dt`` (Bullet's damping).
+- ``restitution`` e ∈ [0, 1]: coefficient of restitution of the object (table and robot contacts).
+- ``linear_damping``, ``angular_damping`` b (1/s): viscous decay, free motion ``v(t) = v(0) e^{−b t}``
+  (applied as a force −m b v at the CoM and a torque −b I ω; Bullet's own damping is off).
 - ``table_tilt_x``, ``table_tilt_y`` (rad): gravity rotated about W's x / y axis, which is the same as the
   table plane tilted the other way (the table stays z = table_height in the simulated world).
 - ``clock_offset`` (s): the robot path is replayed as ``p_E(t + clock_offset)``.
 - ``spinning_friction``, ``rolling_friction`` (m): torsional and rolling resistance at the table contact.
 - ``contact_stiffness`` (N/m) with optional ``contact_damping`` (N s/m): compliant table contact.
 - ``friction_scale_table``, ``friction_scale_robot``: multiply the model's friction coefficients.
+- ``friction_object_table``: replaces the model's object–table coefficient.
 """
 
 from __future__ import annotations
@@ -45,6 +47,7 @@ class SimSettings:
     contact_damping: float | None = None
     friction_scale_table: float = 1.0
     friction_scale_robot: float = 1.0
+    friction_object_table: float | None = None  # absolute override of the model's value
     extra: dict[str, float] = field(default_factory=dict)  # free slots for effects defined elsewhere
 
 
@@ -80,9 +83,9 @@ def _scale(name: str) -> Callable[[SimSettings, float], SimSettings]:
 
 EFFECTS: Mapping[str, EffectSpec] = MappingProxyType(
     {
-        "restitution": EffectSpec(_field("restitution"), "object-table coefficient of restitution", 0.0, (0.0, 1.0)),
-        "linear_damping": EffectSpec(_field("linear_damping"), "linear velocity damping, 1/s", 0.0, (0.0, 1.0)),
-        "angular_damping": EffectSpec(_field("angular_damping"), "angular velocity damping, 1/s", 0.0, (0.0, 1.0)),
+        "restitution": EffectSpec(_field("restitution"), "coefficient of restitution of the object", 0.0, (0.0, 1.0)),
+        "linear_damping": EffectSpec(_field("linear_damping"), "viscous linear damping rate, 1/s", 0.0, (0.0, 20.0)),
+        "angular_damping": EffectSpec(_field("angular_damping"), "viscous angular damping rate, 1/s", 0.0, (0.0, 20.0)),
         "table_tilt_x": EffectSpec(_tilt(0), "gravity rotated about W x, rad", 0.0, (-0.2, 0.2)),
         "table_tilt_y": EffectSpec(_tilt(1), "gravity rotated about W y, rad", 0.0, (-0.2, 0.2)),
         "clock_offset": EffectSpec(_field("clock_offset"), "robot path replayed at t + offset, s", 0.0, (-0.2, 0.2)),
@@ -91,6 +94,7 @@ EFFECTS: Mapping[str, EffectSpec] = MappingProxyType(
         "contact_stiffness": EffectSpec(_positive_or_none("contact_stiffness"), "compliant table contact, N/m", 0.0, (1e2, 1e7)),
         "contact_damping": EffectSpec(_positive_or_none("contact_damping"), "compliant table contact damping, N s/m", 0.0, (0.0, 1e5)),
         "friction_scale_table": EffectSpec(_scale("friction_scale_table"), "x object-table friction", 1.0, (0.1, 5.0)),
+        "friction_object_table": EffectSpec(_field("friction_object_table"), "object-table friction", 0.26, (0.0, 2.0)),
         "friction_scale_robot": EffectSpec(_scale("friction_scale_robot"), "x object-robot friction", 1.0, (0.1, 5.0)),
     }
 )

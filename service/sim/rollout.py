@@ -9,9 +9,10 @@ gravity-compensated, driven by a force
     F = m_E [ω² (p_d − p) + 2ζω (ṗ_d − ṗ)]               (kinematic following, ω = follow_omega)
     F = K (p_d − p) + 2ζ√(K m_E) (ṗ_d − ṗ)                (impedance toward the command, K = stiffness)
 
-clamped to ``max_ee_force``; it does not collide with the table. Friction pairs follow Bullet's product
-rule: the object's own coefficient is ``table_friction_base`` = 1 and the table and sphere carry
-μ_OT and μ_OR, so the pairs are exactly the model's ``friction.object_table`` / ``object_robot``.
+clamped to ``max_ee_force``; it does not collide with the table. Friction and restitution pairs follow
+Bullet's product rule: the object's own friction is ``table_friction_base`` = 1 and the table and sphere
+carry μ_OT and μ_OR, so the pairs are exactly the model's ``friction.object_table`` / ``object_robot``;
+table and sphere have restitution 1, so the object's own restitution is the pair's.
 Effects (``service.sim.effects``) change gravity, restitution, damping, the robot clock, etc.
 
 Determinism: each call owns a fresh ``pybullet.DIRECT`` client with fixed parameters and steps a fixed
@@ -137,7 +138,8 @@ def rollout(
         # table
         plane = pb.createCollisionShape(pb.GEOM_PLANE, **kw)
         table = pb.createMultiBody(0.0, plane, basePosition=[0, 0, float(table_height)], **kw)
-        pb.changeDynamics(table, -1, lateralFriction=model.friction.object_table * s.friction_scale_table,
+        mu_ot = model.friction.object_table if s.friction_object_table is None else s.friction_object_table
+        pb.changeDynamics(table, -1, lateralFriction=mu_ot * s.friction_scale_table,
                           restitution=1.0, **kw)
 
         # object
@@ -160,7 +162,7 @@ def rollout(
             baseInertialFrameOrientation=_xyzw(mat_to_quat(R_OI)), **kw,
         )
         dyn = dict(lateralFriction=cfg.table_friction_base, restitution=float(s.restitution),
-                   linearDamping=float(s.linear_damping), angularDamping=float(s.angular_damping),
+                   linearDamping=0.0, angularDamping=0.0,
                    spinningFriction=float(s.spinning_friction), rollingFriction=float(s.rolling_friction),
                    localInertiaDiagonal=[float(x) for x in lam], collisionMargin=float(cfg.collision_margin),
                    activationState=pb.ACTIVATION_STATE_DISABLE_SLEEPING)
@@ -191,7 +193,7 @@ def rollout(
         ee = pb.createMultiBody(float(cfg.ee_mass), sph, basePosition=p_d[0].tolist(), **kw)
         pb.resetBaseVelocity(ee, v_d[0].tolist(), [0, 0, 0], **kw)
         pb.changeDynamics(ee, -1, lateralFriction=model.friction.object_robot * s.friction_scale_robot,
-                          restitution=0.0, linearDamping=0.0, angularDamping=0.0, **kw)
+                          restitution=1.0, linearDamping=0.0, angularDamping=0.0, **kw)
         pb.setCollisionFilterPair(ee, table, -1, -1, 0, **kw)
         g_comp = -cfg.ee_mass * np.asarray(s.gravity_W, float)
 
@@ -223,6 +225,7 @@ def rollout(
                 k += 1
             f_since = 0.0
 
+        damped = s.linear_damping > 0 or s.angular_damping > 0
         sample(0)
         for i in range(1, n_steps + 1):
             pe, _ = pb.getBasePositionAndOrientation(ee, **kw)
@@ -232,6 +235,14 @@ def rollout(
             if nF > cfg.max_ee_force:
                 F = F * (cfg.max_ee_force / nF)
             pb.applyExternalForce(ee, -1, F.tolist(), list(pe), pb.WORLD_FRAME, **kw)
+            if damped:
+                pc, qc = pb.getBasePositionAndOrientation(obj, **kw)
+                vc, wc = pb.getBaseVelocity(obj, **kw)
+                R_WI = quat_to_mat(_wxyz(qc))
+                f_d = -model.mass * s.linear_damping * np.asarray(vc)
+                tau_d = -s.angular_damping * (R_WI @ (lam * (R_WI.T @ np.asarray(wc))))
+                pb.applyExternalForce(obj, -1, f_d.tolist(), list(pc), pb.WORLD_FRAME, **kw)
+                pb.applyExternalTorque(obj, -1, tau_d.tolist(), pb.WORLD_FRAME, **kw)
             pb.stepSimulation(**kw)
             fr = sum(c[9] for c in pb.getContactPoints(obj, ee, **kw))
             f_since = max(f_since, fr)

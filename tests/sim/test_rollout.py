@@ -133,3 +133,11 @@ def test_bad_inputs_are_refused():
     bad = ObjectModel(m.visual, m.collision, 0.5, True, np.zeros(3), np.diag([1.0, 0.1, 0.1]), Friction())
     with pytest.raises(ValueError, match="inertia"):
         rollout(bad, at(0.05), np.zeros(3), np.zeros(3), (T, FAR), 0.0, 0.02, CFG)
+
+
+def test_linear_damping_is_a_viscous_rate():
+    # a box sliding on a frictionless table: v(t) = v0 exp(-b t)
+    m = box_model(effects={"linear_damping": 2.0, "friction_object_table": 0.0})
+    r = rollout(m, at(0.05), np.array([0.4, 0, 0]), np.zeros(3), (T, FAR), 0.0, 0.02, CFG)
+    k = 30
+    assert r.v_WO_W[k, 0] == pytest.approx(0.4 * np.exp(-2.0 * T[k]), rel=0.05)
