@@ -8,14 +8,19 @@ when loaded with ``URDF_USE_INERTIA_FROM_FILE``). ``<visual>`` → ``meshes/fuse
 What pybullet's URDF parser reads from a link's ``<contact>`` (bullet3 ``UrdfParser::parseLink``):
 ``lateral_friction``, ``rolling_friction``, ``spinning_friction``, ``restitution``, ``stiffness`` +
 ``damping`` (contact), ``inertia_scaling``, ``friction_anchor`` — each as a ``value`` attribute.
-Bullet combines two bodies' friction and restitution by **product**; the object's
-``lateral_friction`` is μ(object, table) and its ``restitution`` is e, so a scene built around the
-object gives the table friction 1 and restitution 1 (and the robot sphere friction
-μ(object, robot) / μ(object, table)) — ``partner_dynamics`` returns these numbers.
-pybullet has no URDF element for a body's linear/angular velocity damping (only
-``changeDynamics(linearDamping=…, angularDamping=…)``, whose default is 0.04 for both); these,
-μ(object, robot) and any effect pybullet cannot read go into the extension element
-``<vysics:dynamics>`` (namespace ``EXT_NS``), which pybullet ignores and ``load_object`` applies.
+Bullet combines two bodies' friction and restitution by **product** (rolling/spinning friction as
+r₀μ₁ + μ₀r₁); the object's ``lateral_friction`` is μ(object, table) and its ``restitution`` is e, so
+a scene built around the object gives the table friction 1 and restitution 1, and the robot sphere
+friction μ(object, robot) / μ(object, table) — ``partner_dynamics`` returns these numbers.
+Effects (names of ``service.sim.effects``): ``restitution``, ``rolling_friction``,
+``spinning_friction``, ``contact_stiffness``/``contact_damping`` go into ``<contact>``;
+``friction_object_table``, ``friction_scale_table``, ``friction_scale_robot`` are folded into the two
+friction coefficients. pybullet has no URDF element for a body's velocity damping, and its
+``changeDynamics`` damping is not viscous (Bullet applies −m·b·(1 + |v|)·v); the viscous rates
+``linear_damping``/``angular_damping`` (1/s: force −m b v at the CoM, torque −b I ω), μ(object, robot)
+and every other effect go into the extension element ``<vysics:dynamics>`` (namespace ``EXT_NS``),
+which pybullet ignores; ``load_object`` turns Bullet's own damping off and ``apply_damping`` applies
+the viscous forces before a step.
 """
 
 from __future__ import annotations
@@ -43,9 +48,11 @@ CONTACT_EFFECTS = {
     "restitution": "restitution",
     "rolling_friction": "rolling_friction",
     "spinning_friction": "spinning_friction",
+    "contact_stiffness": "stiffness",
+    "contact_damping": "damping",
 }
-# effects applied by load_object through changeDynamics: effect key -> changeDynamics keyword
-DAMPING_EFFECTS = {"linear_damping": "linearDamping", "angular_damping": "angularDamping"}
+# effects folded into the friction coefficients
+FRICTION_EFFECTS = ("friction_object_table", "friction_scale_table", "friction_scale_robot")
 
 
 @dataclass(frozen=True)
@@ -81,11 +88,35 @@ def _f(x: float) -> str:
     return repr(float(x))
 
 
+def effective_friction(model: ObjectModel) -> tuple[float, float]:
+    """(μ(object, table), μ(object, robot)) after the accepted friction effects."""
+    fx = model.effects
+    mu_t = float(fx.get("friction_object_table", model.friction.object_table))
+    mu_t *= float(fx.get("friction_scale_table", 1.0))
+    mu_r = float(model.friction.object_robot) * float(fx.get("friction_scale_robot", 1.0))
+    return mu_t, mu_r
+
+
+def contact_values(model: ObjectModel) -> dict[str, float]:
+    """The ``<contact>`` children (element name -> value) of the model, friction first."""
+    out = {"lateral_friction": effective_friction(model)[0]}
+    fx = model.effects
+    for key in ("restitution", "rolling_friction", "spinning_friction"):
+        if key in fx:
+            out[CONTACT_EFFECTS[key]] = float(fx[key])
+    k = float(fx.get("contact_stiffness", 0.0))
+    if k > 0:  # Bullet needs both; same default damping as service.sim (critical for the mass)
+        d = float(fx.get("contact_damping", 0.0))
+        out["stiffness"] = k
+        out["damping"] = d if d > 0 else 2.0 * math.sqrt(k * float(model.mass))
+    return out
+
+
 def extension_values(model: ObjectModel) -> dict[str, float]:
-    """What goes into ``<vysics:dynamics>``: μ(object, robot) and the effects not in <contact>."""
-    ext = {"object_robot_friction": float(model.friction.object_robot)}
+    """What goes into ``<vysics:dynamics>``: μ(object, robot) and the effects pybullet cannot read."""
+    ext = {"object_robot_friction": effective_friction(model)[1]}
     for key, val in model.effects.items():
-        if key not in CONTACT_EFFECTS:
+        if key not in CONTACT_EFFECTS and key not in FRICTION_EFFECTS:
             ext[key] = float(val)
     return ext
 
@@ -98,9 +129,9 @@ def urdf_xml(model: ObjectModel, mesh_paths: MeshPaths) -> str:
     for key, val in model.effects.items():
         if not math.isfinite(float(val)):
             raise ValueError(f"effect {key!r} must be finite, got {val}")
-    mu = float(model.friction.object_table)
-    if not (math.isfinite(mu) and mu >= 0):
-        raise ValueError(f"friction.object_table must be finite and >= 0, got {mu}")
+    mu_t, mu_r = effective_friction(model)
+    if not (math.isfinite(mu_t) and mu_t >= 0 and math.isfinite(mu_r) and mu_r >= 0):
+        raise ValueError(f"friction coefficients must be finite and >= 0, got {mu_t}, {mu_r}")
     c = np.asarray(model.com_O, float)
     inertia = 0.5 * (np.asarray(model.inertia_O, float) + np.asarray(model.inertia_O, float).T)
     lines = [
@@ -108,11 +139,9 @@ def urdf_xml(model: ObjectModel, mesh_paths: MeshPaths) -> str:
         f'<robot name="object" xmlns:vysics="{EXT_NS}">',
         '  <link name="object">',
         "    <contact>",
-        f'      <lateral_friction value="{_f(mu)}"/>',
     ]
-    for key, elem in CONTACT_EFFECTS.items():
-        if key in model.effects:
-            lines.append(f'      <{elem} value="{_f(model.effects[key])}"/>')
+    for elem, val in contact_values(model).items():
+        lines.append(f'      <{elem} value="{_f(val)}"/>')
     lines += [
         "    </contact>",
         "    <inertial>",
@@ -199,9 +228,9 @@ def load_object(
     orientation_xyzw=(0.0, 0.0, 0.0, 1.0),
 ) -> int:
     """Load the object into a pybullet client as written: inertia from the file (not recomputed
-    from the collision shapes), velocity damping from the extension (0 when absent, not pybullet's
-    default 0.04). ``position``/``orientation_xyzw`` place frame O in W (pybullet's quaternion
-    order x,y,z,w). Returns the body id."""
+    from the collision shapes), Bullet's own velocity damping off (its default is 0.04; use
+    ``apply_damping`` for the model's viscous damping). ``position``/``orientation_xyzw`` place
+    frame O in W (pybullet's quaternion order x,y,z,w). Returns the body id."""
     import pybullet as p
 
     body = p.loadURDF(
@@ -211,15 +240,25 @@ def load_object(
         flags=p.URDF_USE_INERTIA_FROM_FILE,
         physicsClientId=client,
     )
-    ext = read_extension(urdf_path)
-    p.changeDynamics(
-        body,
-        -1,
-        linearDamping=float(ext.get("linear_damping", 0.0)),
-        angularDamping=float(ext.get("angular_damping", 0.0)),
-        physicsClientId=client,
-    )
+    p.changeDynamics(body, -1, linearDamping=0.0, angularDamping=0.0, physicsClientId=client)
     return body
+
+
+def apply_damping(body: int, client: int, linear_damping: float, angular_damping: float) -> None:
+    """Apply the viscous damping force −m b_v v (at the CoM) and torque −b_ω I ω for the next
+    ``stepSimulation`` (pybullet clears external forces after each step), as ``service.sim`` does."""
+    import pybullet as p
+
+    if linear_damping <= 0 and angular_damping <= 0:
+        return
+    info = p.getDynamicsInfo(body, -1, physicsClientId=client)
+    pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=client)
+    v, w = p.getBaseVelocity(body, physicsClientId=client)
+    R_WI = _pose_xyzw(pos, orn)[:3, :3]
+    force = -float(info[0]) * linear_damping * np.asarray(v)
+    torque = -angular_damping * (R_WI @ (np.asarray(info[2]) * (R_WI.T @ np.asarray(w))))
+    p.applyExternalForce(body, -1, force.tolist(), list(pos), p.WORLD_FRAME, physicsClientId=client)
+    p.applyExternalTorque(body, -1, torque.tolist(), p.WORLD_FRAME, physicsClientId=client)
 
 
 def _pose_xyzw(pos, orn_xyzw) -> np.ndarray:

@@ -13,6 +13,7 @@ from service.export import (
     EXT_NS,
     ExportConfig,
     MeshPaths,
+    apply_damping,
     check_inertial,
     get_X_WO,
     load_object,
@@ -235,10 +236,15 @@ def test_no_restitution_by_default(tmp_path, client):
     }
 
 
-def test_box_drop_comes_to_rest_on_plane(tmp_path, client):
+@pytest.mark.parametrize("shape", ["box", "L"])
+def test_drop_comes_to_rest_on_plane(tmp_path, client, shape, request):
     p.setGravity(0, 0, -9.81, physicsClientId=client)
     add_plane(client)
-    path = write_model(model(), tmp_path)
+    if shape == "box":
+        m = model()
+    else:  # multi-piece collision; 4 cm tall like the box
+        m = model(mesh=l_mesh(), collision=request.getfixturevalue("l_pieces"), com=(0.01, -0.01, 0.0))
+    path = write_model(m, tmp_path)
     R0 = so3_exp(np.array([0.15, -0.1, 0.4]))
     body = load_object(path, client)
     set_X_WO(body, make_X(R0, [0.0, 0.0, 0.08]), client)
@@ -247,21 +253,60 @@ def test_box_drop_comes_to_rest_on_plane(tmp_path, client):
     X = get_X_WO(body, client)
     # lands on its largest face: O's z axis vertical, centre at half the height
     assert abs(abs(X[2, 2]) - 1.0) < 1e-3
-    assert X[2, 3] == pytest.approx(SIZE[2] / 2, abs=1.5e-3)
+    assert X[2, 3] == pytest.approx(SIZE[2] / 2, abs=2.5e-3 if shape == "L" else 1.5e-3)
     v, w = p.getBaseVelocity(body, physicsClientId=client)
     assert np.linalg.norm(v) < 1e-2 and np.linalg.norm(w) < 1e-1
 
 
-def test_damping_from_extension_is_applied(tmp_path, client):
+def test_viscous_damping_from_extension(tmp_path, client):
+    """Free flight without gravity: v(t) = v0 e^{-b t}, ω(t) = ω0 e^{-b_ω t}; undamped stays put."""
     p.setGravity(0, 0, 0, physicsClientId=client)
-    damped = load_object(write_model(model(effects={"linear_damping": 0.5}), tmp_path / "a"), client)
+    p.setPhysicsEngineParameter(fixedTimeStep=1 / 240, physicsClientId=client)
+    R = so3_exp(np.array([0.3, -0.2, 0.5]))
+    inertia = R @ np.diag([1.0e-4, 2.0e-4, 2.5e-4]) @ R.T
+    path_a = write_model(model(inertia=inertia, effects={"linear_damping": 0.8, "angular_damping": 1.5}), tmp_path / "a")
+    damped = load_object(path_a, client)
     free = load_object(write_model(model(), tmp_path / "b"), client, position=(1, 0, 0))
-    assert read_extension(tmp_path / "a" / "object.urdf")["linear_damping"] == 0.5
+    ext = read_extension(path_a)
+    assert ext["linear_damping"] == 0.8 and ext["angular_damping"] == 1.5
+    w0 = np.array([0.0, 0.0, 2.0])  # a spin about a non-principal axis: check the decay of |L|·
     for b in (damped, free):
-        p.resetBaseVelocity(b, [0.5, 0, 0], [0, 0, 0], physicsClientId=client)
+        p.resetBaseVelocity(b, [0.5, 0, 0], w0.tolist(), physicsClientId=client)
     for _ in range(240):
+        apply_damping(damped, client, ext["linear_damping"], ext["angular_damping"])
         p.stepSimulation(physicsClientId=client)
-    v_damped = p.getBaseVelocity(damped, physicsClientId=client)[0][0]
-    v_free = p.getBaseVelocity(free, physicsClientId=client)[0][0]
-    assert v_free == pytest.approx(0.5, rel=1e-6)  # no pybullet default damping
-    assert v_damped < 0.45
+    v_d, w_d = (np.asarray(x) for x in p.getBaseVelocity(damped, physicsClientId=client))
+    v_f = np.asarray(p.getBaseVelocity(free, physicsClientId=client)[0])
+    assert v_f[0] == pytest.approx(0.5, rel=1e-6)  # Bullet's own damping is off
+    assert v_d[0] == pytest.approx(0.5 * np.exp(-0.8), rel=0.02)
+    # torque −b I ω makes the angular momentum decay as e^{-b t} (no other torque)
+    pos, orn = p.getBasePositionAndOrientation(damped, physicsClientId=client)
+    R_WI = np.array(p.getMatrixFromQuaternion(orn)).reshape(3, 3)
+    lam = np.asarray(p.getDynamicsInfo(damped, -1, physicsClientId=client)[2])
+    L = R_WI @ (lam * (R_WI.T @ w_d))
+    assert np.linalg.norm(L) == pytest.approx(np.linalg.norm(inertia @ w0) * np.exp(-1.5), rel=0.03)
+
+
+def test_effects_in_contact_and_friction(tmp_path, client):
+    fx = {
+        "restitution": 0.3,
+        "spinning_friction": 0.002,
+        "rolling_friction": 0.001,
+        "contact_stiffness": 5e4,
+        "friction_scale_table": 2.0,
+        "friction_scale_robot": 0.5,
+        "table_tilt_x": 0.01,
+    }
+    path = write_model(model(effects=fx), tmp_path)
+    body = load_object(path, client)
+    info = p.getDynamicsInfo(body, -1, physicsClientId=client)
+    assert info[1] == pytest.approx(0.6)  # 0.3 scaled by 2
+    assert info[5] == pytest.approx(0.3)
+    assert info[6] == pytest.approx(0.001)  # rolling
+    assert info[7] == pytest.approx(0.002)  # spinning
+    assert info[9] == pytest.approx(5e4)  # contact stiffness
+    assert info[8] == pytest.approx(2 * np.sqrt(5e4 * 0.5))  # default contact damping
+    ext = read_extension(path)
+    assert ext == {"object_robot_friction": pytest.approx(0.1), "table_tilt_x": 0.01}
+    assert partner_dynamics(path)["robot"]["lateralFriction"] == pytest.approx(0.1 / 0.6)
+    assert partner_dynamics(path)["table"] == {"lateralFriction": 1.0, "restitution": 1.0}
