@@ -354,7 +354,7 @@ def find_root(dest: Path, archive_name: str) -> Path:
         if (root / "session.json").is_file():
             return root
         raise InvalidSession("session.json", f"missing (not found at the root nor in the top-level folder '{dirs[0]}/')")
-    if len(dirs) > 1 and any((dest / d / "session.json").is_file() for d in dirs):
+    if len(tops) > 1 and any((dest / d / "session.json").is_file() for d in dirs):
         raise InvalidSession(
             archive_name,
             "files must sit at the archive root or inside exactly one top-level folder; found "

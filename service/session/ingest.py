@@ -182,7 +182,7 @@ def _robot_positions(meta: SessionMeta, log: robot.RobotLog) -> np.ndarray:
         k, j = (int(x) for x in np.argwhere(bad)[0])
         raise InvalidSession(
             robot.REL,
-            f"sample {k + 1} (line {k + 2}): q{j + 1} = {log.q[k, j]:g} rad is outside the Panda joint range "
+            f"row {int(log.lines[k])}: q{j + 1} = {log.q[k, j]:g} rad is outside the Panda joint range "
             f"[{lo[j]:g}, {hi[j]:g}] (radians expected, not degrees)",
         )
     return kinematics.panda_sphere_centres(log.q, tip_offset(meta))

@@ -30,6 +30,7 @@ class RobotLog:
     ee: np.ndarray | None  # (M,3) sphere centre in W, when given directly
     q: np.ndarray | None  # (M,7) joint angles, rad, with robot.joints
     cmd: np.ndarray | None  # (M,3) commanded sphere centre in W
+    lines: np.ndarray  # (M,) line number of each sample in robot.csv (header = line 1), for messages
 
 
 def read_robot_csv(path: Path, joints: str | None) -> RobotLog:
@@ -96,7 +97,7 @@ def read_robot_csv(path: Path, joints: str | None) -> RobotLog:
     ee = out[:, 1:4] if joints is None else None
     q = out[:, 1:8] if joints is not None else None
     cmd = out[:, -3:] if cmd_given else None
-    return RobotLog(t=t, ee=ee, q=q, cmd=cmd)
+    return RobotLog(t=t, ee=ee, q=q, cmd=cmd, lines=np.array([ln for ln, _ in body]))
 
 
 def coverage_tolerance(frame_times: np.ndarray) -> float:
