@@ -7,9 +7,10 @@ frame is ``X_OI = (R, com_O)``); the end effector is a sphere of radius ``ee_rad
 gravity-compensated, driven by a force
 
     F = m_E [ω² (p_d − p) + 2ζω (ṗ_d − ṗ)]               (kinematic following, ω = follow_omega)
-    F = K (p_d − p) + 2ζ√(K m_E) (ṗ_d − ṗ)                (impedance toward the command, K = stiffness)
+    F = K (p_d − p) − 2ζ√(K m_E) ṗ                         (impedance toward the command, K = stiffness)
 
-clamped to ``max_ee_force``; it does not collide with the table. Friction and restitution pairs follow
+clamped to ``max_ee_force``; it does not collide with the table and is held against spinning (very large
+rotational inertia), like a sphere fixed to a flange. Friction and restitution pairs follow
 Bullet's product rule: the object's own friction is ``table_friction_base`` = 1 and the table and sphere
 carry μ_OT and μ_OR, so the pairs are exactly the model's ``friction.object_table`` / ``object_robot``;
 table and sphere have restitution 1, so the object's own restitution is the pair's.
@@ -193,7 +194,8 @@ def rollout(
         ee = pb.createMultiBody(float(cfg.ee_mass), sph, basePosition=p_d[0].tolist(), **kw)
         pb.resetBaseVelocity(ee, v_d[0].tolist(), [0, 0, 0], **kw)
         pb.changeDynamics(ee, -1, lateralFriction=model.friction.object_robot * s.friction_scale_robot,
-                          restitution=1.0, linearDamping=0.0, angularDamping=0.0, **kw)
+                          restitution=1.0, linearDamping=0.0, angularDamping=0.0,
+                          localInertiaDiagonal=[1e3, 1e3, 1e3], **kw)
         pb.setCollisionFilterPair(ee, table, -1, -1, 0, **kw)
         g_comp = -cfg.ee_mass * np.asarray(s.gravity_W, float)
 
@@ -225,12 +227,14 @@ def rollout(
                 k += 1
             f_since = 0.0
 
+        # kinematic following feeds the path velocity forward; impedance damps the absolute velocity
+        v_ff = v_d if cfg.robot_mode == "kinematic" else np.zeros_like(v_d)
         damped = s.linear_damping > 0 or s.angular_damping > 0
         sample(0)
         for i in range(1, n_steps + 1):
             pe, _ = pb.getBasePositionAndOrientation(ee, **kw)
             ve, _ = pb.getBaseVelocity(ee, **kw)
-            F = kp * (p_d[i] - np.asarray(pe)) + kd * (v_d[i] - np.asarray(ve)) + g_comp
+            F = kp * (p_d[i] - np.asarray(pe)) + kd * (v_ff[i] - np.asarray(ve)) + g_comp
             nF = np.linalg.norm(F)
             if nF > cfg.max_ee_force:
                 F = F * (cfg.max_ee_force / nF)

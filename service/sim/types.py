@@ -15,7 +15,7 @@ class SimConfig:
     - ``"kinematic"``: the sphere follows the given path with a very stiff, critically damped,
       gravity-compensated PD (natural frequency ``follow_omega``), i.e. it replays the recorded path;
     - ``"impedance"``: the path is a command; a Cartesian spring–damper of stiffness
-      ``impedance_stiffness`` (critically damped for ``ee_mass``) pulls the sphere toward the command,
+      ``impedance_stiffness`` (damping ``2ζ√(K m_E)`` on the absolute velocity) pulls the sphere toward the command,
       after an optional first-order low-pass of the command (``cmd_lowpass_tau``), so contact forces
       deflect the sphere as they deflect a real impedance-controlled arm.
     """
@@ -23,7 +23,7 @@ class SimConfig:
     dt: float = 1.0 / 1000.0  # s, simulator step
     solver_iterations: int = 50
     robot_mode: str = "kinematic"  # "kinematic" | "impedance"
-    ee_mass: float = 3.0  # kg, effective mass of the end effector
+    ee_mass: float = 1.0  # kg, effective mass of the end effector
     follow_omega: float = 150.0  # rad/s, kinematic following bandwidth
     impedance_stiffness: float = 1500.0  # N/m
     impedance_damping_ratio: float = 1.0
