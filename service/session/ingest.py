@@ -284,6 +284,7 @@ def build_session(
         z_table = _detect_table(root, K, X_WC, meta.camera.depth_scale, files["depth"], files["masks"])
 
     _report(progress, 1.0, "session is valid")
+    aroot = root.resolve()
     return Session(
         name=meta.name or name or root.name,
         root=root,
@@ -294,9 +295,9 @@ def build_session(
         depth_scale=float(meta.camera.depth_scale),
         width=W,
         height=H,
-        rgb_files=tuple(p.resolve() for p in files["rgb"]),
-        depth_files=tuple(p.resolve() for p in files["depth"]),
-        mask_files=tuple(p.resolve() for p in files["masks"]),
+        rgb_files=tuple(aroot / "rgb" / p.name for p in files["rgb"]),
+        depth_files=tuple(aroot / "depth" / p.name for p in files["depth"]),
+        mask_files=tuple(aroot / "masks" / p.name for p in files["masks"]),
         robot_t=log.t,
         robot_p_WE=np.asarray(robot_p, dtype=float),
         robot_cmd_WE=log.cmd,
@@ -338,6 +339,8 @@ def ingest(source: Path, dest: Path, *, limits: Limits | None = None, progress: 
         raise InvalidSession(source.name, "upload not found")
     if dest.exists() and (not dest.is_dir() or any(dest.iterdir())):
         raise FileExistsError(f"ingest destination must be new or an empty folder: {dest}")
+    if source.is_dir() and dest.resolve().is_relative_to(source.resolve()):
+        raise ValueError(f"ingest destination {dest} lies inside the session folder {source}")
     created: list[Path] = []
     p = dest
     while not p.exists():

@@ -74,19 +74,29 @@ def read_robot_csv(path: Path, joints: str | None) -> RobotLog:
     body = numbered[1:]
     if len(body) < 2:
         raise InvalidSession(REL, f"needs at least 2 samples, found {len(body)}")
-    out = np.empty((len(body), len(need)), dtype=float)
-    for k, (line, r) in enumerate(body):
+    for line, r in body:
         if len(r) != len(cols):
             raise InvalidSession(REL, f"row {line}: {len(r)} fields, header has {len(cols)}")
-        for j, c in enumerate(need):
-            s = r[idx[c]].strip()
-            try:
-                v = float(s)
-            except ValueError:
-                raise InvalidSession(REL, f"row {line}: {c} = '{s}' is not a number") from None
-            if not math.isfinite(v):
-                raise InvalidSession(REL, f"row {line}: {c} is {s}, expected a finite number")
-            out[k, j] = v
+    sel = [idx[c] for c in need]
+    cells = np.array([[r[j] for j in sel] for _, r in body], dtype=object)
+    try:
+        out = cells.astype(str).astype(float)
+    except ValueError:
+        out = None
+    if out is None:  # find the first cell that is not a number, for the message
+        for line, r in body:
+            for c in need:
+                s = r[idx[c]].strip()
+                try:
+                    float(s)
+                except ValueError:
+                    raise InvalidSession(REL, f"row {line}: {c} = '{s}' is not a number") from None
+        raise InvalidSession(REL, "holds a value that is not a number")  # pragma: no cover
+    bad = ~np.isfinite(out)
+    if bad.any():
+        k, j = (int(x) for x in np.argwhere(bad)[0])
+        line, r = body[k]
+        raise InvalidSession(REL, f"row {line}: {need[j]} is {r[idx[need[j]]].strip()}, expected a finite number")
     t = out[:, 0]
     dt = np.diff(t)
     if (dt <= 0).any():

@@ -4,7 +4,7 @@ Points: for a few frames, every valid depth pixel outside the dilated object mas
 p_C = d K^-1 [u, v, 1]^T, and mapped to the world, p_W = X_WC p_C. The object's own points give an upper
 bound for the table: z_max = (2nd percentile of the object's z) + 2 cm.
 
-RANSAC: planes n.p = c through 3 random points are kept only when near-horizontal
+RANSAC (hypotheses scored on a random subset of the points): planes n.p = c through 3 random points are kept only when near-horizontal
 (angle(n, z_W) <= ``max_tilt_deg``) and below z_max; the plane with the most inliers
 (|n.p - c| <= ``inlier_m``) wins. It is refined by total least squares (SVD of the centred inliers),
 twice, with the inlier band shrunk to 3 robust sigmas (MAD), not below ``min_band_m``.
@@ -22,7 +22,8 @@ import numpy as np
 @dataclass(frozen=True)
 class TablePlaneConfig:
     n_frames: int = 5
-    max_points: int = 40_000
+    max_points: int = 40_000  # background points kept for the fit (over all frames)
+    ransac_points: int = 4_000  # points on which RANSAC hypotheses are scored
     iterations: int = 300
     inlier_m: float = 0.01
     min_band_m: float = 0.002
@@ -43,12 +44,21 @@ class TablePlane:
     rms_m: float  # residual RMS of the inliers
 
 
-def back_project(depth_m: np.ndarray, K: np.ndarray, X_WC: np.ndarray, sel: np.ndarray) -> np.ndarray:
-    """World points (P,3) of the pixels selected by the boolean ``sel`` (H,W) with depth > 0."""
+def back_project(
+    depth_m: np.ndarray, K: np.ndarray, X_WC: np.ndarray, sel: np.ndarray, max_points: int | None = None, rng=None
+) -> np.ndarray:
+    """World points (P,3) of the pixels selected by the boolean ``sel`` (H,W) with depth > 0.
+
+    With ``max_points``, a uniform random subset of at most that many pixels is back-projected.
+    """
     v, u = np.nonzero(sel & (depth_m > 0))
+    if max_points is not None and len(u) > max_points:
+        rng = rng if rng is not None else np.random.default_rng(0)
+        k = rng.choice(len(u), max_points, replace=False)
+        v, u = v[k], u[k]
     z = depth_m[v, u].astype(float)
-    x = (u - K[0, 2] - K[0, 1] * (v - K[1, 2]) / K[1, 1]) / K[0, 0] * z
     y = (v - K[1, 2]) / K[1, 1] * z
+    x = (u - K[0, 2]) / K[0, 0] * z - K[0, 1] / K[0, 0] * y
     p_C = np.stack([x, y, z], axis=1)
     return p_C @ X_WC[:3, :3].T + X_WC[:3, 3]
 
@@ -66,11 +76,12 @@ def detect_table_plane(
     rng = np.random.default_rng(cfg.seed)
     kernel = np.ones((2 * cfg.mask_dilate_px + 1,) * 2, np.uint8)
     bg_pts, obj_pts = [], []
+    per_frame = max(1, cfg.max_points // max(1, len(depths)))
     for d, m in zip(depths, masks):
         m8 = m.astype(np.uint8)
         dil = cv2.dilate(m8, kernel) > 0 if cfg.mask_dilate_px > 0 else m
-        bg_pts.append(back_project(d, K, X_WC, ~dil))
-        obj_pts.append(back_project(d, K, X_WC, m))
+        bg_pts.append(back_project(d, K, X_WC, ~dil, per_frame, rng))
+        obj_pts.append(back_project(d, K, X_WC, m, per_frame, rng))
     P = np.concatenate(bg_pts) if bg_pts else np.zeros((0, 3))
     O = np.concatenate(obj_pts) if obj_pts else np.zeros((0, 3))
     z_max = np.inf
@@ -85,9 +96,10 @@ def detect_table_plane(
         return None
     cos_tilt = np.cos(np.deg2rad(cfg.max_tilt_deg))
     best_count, best = 0, None
-    idx = rng.integers(0, n_pts, size=(cfg.iterations, 3))
+    S = P[rng.choice(n_pts, cfg.ransac_points, replace=False)] if n_pts > cfg.ransac_points else P
+    idx = rng.integers(0, len(S), size=(cfg.iterations, 3))
     for i0, i1, i2 in idx:
-        a, b, c = P[i0], P[i1], P[i2]
+        a, b, c = S[i0], S[i1], S[i2]
         n = np.cross(b - a, c - a)
         nn = np.linalg.norm(n)
         if nn < 1e-12:
@@ -98,10 +110,10 @@ def detect_table_plane(
         if n[2] < cos_tilt:
             continue
         off = float(n @ a)
-        count = int((np.abs(P @ n - off) <= cfg.inlier_m).sum())
+        count = int((np.abs(S @ n - off) <= cfg.inlier_m).sum())
         if count > best_count:
             best_count, best = count, (n, off)
-    if best is None or best_count < need:
+    if best is None:
         return None
     n, off = best
     band = cfg.inlier_m

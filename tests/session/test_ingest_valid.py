@@ -138,3 +138,9 @@ def test_progress_is_reported(session_dir, tmp_path):
 def test_session_json_is_copied_verbatim(session_dir, tmp_path):
     s = ingest(session_dir, tmp_path / "d")
     assert json.loads((s.root / "session.json").read_text())["format"] == "vysics-session/1"
+
+
+def test_dest_inside_source_folder_is_refused(session_dir):
+    with pytest.raises(ValueError):
+        ingest(session_dir, session_dir / "staging")
+    assert not (session_dir / "staging").exists()

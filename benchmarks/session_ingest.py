@@ -1,0 +1,101 @@
+"""Session ingest speed on a full-size session built from the real Franka RGB-D sequence.
+
+Builds a `vysics-session/1` folder from /work/shared/data/real/franka_cube_rgbd_sequence (363 frames,
+640x480: JPEG colour, 16-bit depth, 8-bit masks, real intrinsics) with a synthetic 1 kHz robot log, then
+times: sha256_of(folder), ingest(folder), ingest(.tgz), load_session, and table detection on
+640x480 synthetic depth (5 frames). Prints the figures; never fails on time.
+
+    /work/venv/bin/python benchmarks/session_ingest.py
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import tarfile
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from service.session import ingest, load_session, sha256_of  # noqa: E402
+from service.session.table import detect_table_plane  # noqa: E402
+
+REAL = Path("/work/shared/data/real/franka_cube_rgbd_sequence")
+
+
+def build(folder: Path, n: int) -> None:
+    for sub in ("rgb", "depth", "masks"):
+        (folder / sub).mkdir(parents=True)
+    names = sorted(p.stem for p in (REAL / "color").glob("*.jpg"))[:n]
+    for s in names:
+        shutil.copy(REAL / "color" / f"{s}.jpg", folder / "rgb" / f"{s}.jpg")
+        shutil.copy(REAL / "depth" / f"{s}.png", folder / "depth" / f"{s}.png")
+        shutil.copy(REAL / "mask" / f"{s}.png", folder / "masks" / f"{s}.png")
+    shutil.copy(REAL / "camera_K.txt", folder / "cam_K.txt")
+    meta = {
+        "format": "vysics-session/1",
+        "name": "franka_cube_real",
+        "fps": 30.0,
+        "camera": {"depth_scale": 0.001, "T_world_camera": np.eye(4).tolist()},
+        "robot": {"ee_radius": 0.0195},
+        "table": {"height": 0.0},
+    }
+    (folder / "session.json").write_text(json.dumps(meta))
+    t = np.arange(-0.01, len(names) / 30.0 + 0.01, 0.001)
+    rows = ["t,ee_x,ee_y,ee_z,cmd_x,cmd_y,cmd_z"] + [
+        f"{x:.4f},{0.4 + 0.1 * x:.5f},0.0,0.1,{0.41 + 0.1 * x:.5f},0.0,0.1" for x in t
+    ]
+    (folder / "robot.csv").write_text("\n".join(rows) + "\n")
+
+
+def timed(label: str, f, repeat: int = 3):
+    best = np.inf
+    out = None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = f()
+        best = min(best, time.perf_counter() - t0)
+    print(f"{label:48s} {best * 1000:9.1f} ms (best of {repeat})")
+    return out
+
+
+def main() -> None:
+    n = len(list((REAL / "color").glob("*.jpg")))
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        src = tmp / "src"
+        build(src, n)
+        size = sum(p.stat().st_size for p in src.rglob("*") if p.is_file())
+        print(f"session: {n} frames 640x480, {size / 1e6:.1f} MB, robot.csv {len(np.arange(-0.01, n / 30 + 0.01, 0.001))} rows")
+        arc = tmp / "s.tgz"
+        with tarfile.open(arc, "w:gz") as tf:
+            tf.add(src, "franka_cube_real")
+        print(f"archive: {arc.stat().st_size / 1e6:.1f} MB tgz")
+        k = iter(range(100))
+        timed("sha256_of(folder)", lambda: sha256_of(src))
+        timed("ingest(folder)", lambda: ingest(src, tmp / f"d{next(k)}"))
+        s = timed("ingest(tgz)", lambda: ingest(arc, tmp / f"d{next(k)}"))
+        timed("load_session(root)", lambda: load_session(s.root, s.sha256))
+
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+        from tests.session.conftest import look_at, render
+
+        K = np.array([[600.0, 0, 319.5], [0, 600.0, 239.5], [0, 0, 1]])
+        X_WC = look_at(np.array([0.0, -0.3, 0.75]), np.array([0.55, 0.0, 0.0]))
+        rng = np.random.default_rng(0)
+        depths, masks = [], []
+        for i in range(5):
+            d, m = render(X_WC, K, 0.0, [0.5, -0.05, 0], [0.6, 0.05, 0.1], w=640, h=480, noise=0.003, rng=rng)
+            depths.append(d.astype(np.float32))
+            masks.append(m)
+        plane = timed("detect_table_plane (5 frames 640x480, 3 mm noise)", lambda: detect_table_plane(depths, masks, K, X_WC))
+        print(f"table height error: {abs(plane.height) * 1000:.2f} mm (true 0), inlier rms {plane.rms_m * 1000:.2f} mm")
+
+
+if __name__ == "__main__":
+    main()
