@@ -3,17 +3,123 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Callable, Protocol
+
+import numpy as np
+
+from service.contact.types import StepResiduals
+from service.model import ObjectModel
+
+# Contact modes, in the order used by every per-mode table and plot.
+MODES: tuple[str, ...] = ("free_flight", "sliding", "robot_contact", "impact", "rest")
+
+
+@dataclass(frozen=True)
+class ObservedTrajectory:
+    """One tracked trajectory of the object (a toss, or a whole pushing session).
+
+    ``v_WO_W`` / ``w_WO_O`` are backward-difference velocities (``p[k] = p[k-1] + dt v[k]``) or None
+    (then they are differenced from the poses). Frames where ``tracked`` is False are skipped by the
+    error metrics and never used as rollout start states.
+    """
+
+    t: np.ndarray  # (N,) s
+    X_WO: np.ndarray  # (N,4,4) world from object
+    v_WO_W: np.ndarray | None = None  # (N,3) m/s, world axes
+    w_WO_O: np.ndarray | None = None  # (N,3) rad/s, body axes
+    tracked: np.ndarray | None = None  # (N,) bool, None = all tracked
+
+
+@dataclass(frozen=True)
+class RobotPath:
+    """End-effector sphere path for one trajectory, on the robot clock (sampled at ``t``)."""
+
+    t: np.ndarray  # (M,) s
+    p_WE: np.ndarray  # (M,3) measured sphere centre
+    cmd_WE: np.ndarray | None  # (M,3) commanded sphere centre, or None
+    radius: float  # m
+
+
+@dataclass(frozen=True)
+class SimRequest:
+    """One open-loop rollout asked of a simulator.
+
+    The object starts at ``X_WO0`` with velocities ``v0_WO_W`` (world) and ``w0_WO_O`` (body), and is
+    simulated at the output times ``t`` (``t[0]`` is the start). ``effects`` holds effect parameters
+    by key (see ``service.residuals.effects``), on top of the model's own ``effects``.
+    """
+
+    model: ObjectModel
+    X_WO0: np.ndarray  # (4,4)
+    v0_WO_W: np.ndarray  # (3,)
+    w0_WO_O: np.ndarray  # (3,)
+    t: np.ndarray  # (T,) s
+    table_height: float
+    robot: RobotPath | None
+    effects: dict[str, float]
+
+
+class Simulator(Protocol):
+    """Open-loop rollout: returns the simulated poses ``X_WO`` (T,4,4) at ``req.t``."""
+
+    def __call__(self, req: SimRequest) -> np.ndarray: ...
+
+
+@dataclass(frozen=True)
+class ResidualInputs:
+    """What the residual loop needs. Nothing here comes from ``ground_truth/``.
+
+    ``robot[k]`` is the robot path of ``trajectories[k]`` (None for tosses without a robot); ``robot``
+    itself may be None when no trajectory has one. ``step_residuals`` are the contact stage's
+    per-transition residuals of the fitted model (None when the model was not learned here, e.g. a
+    declared model on toss data); the loop then uses its own kinematic residuals only.
+    ``simulate`` overrides the built-in pybullet rollout (tests, other simulators).
+    """
+
+    model: ObjectModel
+    trajectories: tuple[ObservedTrajectory, ...]
+    table_height: float
+    robot: tuple[RobotPath | None, ...] | None = None
+    step_residuals: StepResiduals | None = None
+    simulate: Callable[[SimRequest], np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
 class ResidualConfig:
-    """Settings of the residual loop. ``fast()`` is the reduced preset used by tests."""
+    """Settings of the residual loop. ``fast()`` is the reduced preset used by tests.
+
+    Held-out evaluation: each trajectory is cut into open-loop rollout blocks of ``segment_s``
+    seconds; whole trajectories (>= 4 of them) or blocks are split into training and held-out folds.
+    An effect is accepted when, on held-out segments, (a) the mean error falls by at least
+    ``min_rel_improvement`` (relative) and (b) the one-sided ``1 - alpha`` bootstrap lower bound of
+    the mean paired improvement is > 0 and (c) at least ``min_win_fraction`` of held-out segments
+    improve.
+    """
 
     seed: int = 0
+    candidates: tuple[str, ...] | None = None  # effect names to try; None = every applicable one
+    segment_s: float = 0.15  # rollout horizon per block, s (short: tumbling contact is chaotic)
+    min_segment_frames: int = 5
+    heldout_fraction: float = 0.5
+    max_train_segments: int = 24  # subsample training segments (speed); held-out keeps all
+    max_heldout_segments: int = 64
+    rot_scale_m: float | None = None  # metres per radian in the scalar error; None = object radius
+    min_rel_improvement: float = 0.05
+    alpha: float = 0.05
+    n_bootstrap: int = 2000
+    min_win_fraction: float = 0.5
+    max_effects: int = 3  # greedy forward selection stops after this many accepted effects
+    fit_maxiter: int = 40  # function evaluations budget per effect fit (rollouts over training set)
+    init_fit_frames: int = 9  # start state from a quadratic fit over this many frames centred on the start
+    sim_substep_s: float = 0.002  # max physics step of the built-in simulator
+    contact_tol_m: float = 0.004  # gap below which the table counts as touching (mode classifier)
+    rest_speed: float = 0.03  # m/s, below this (and touching) the object is at rest
+    impact_dv: float = 0.3  # m/s, a velocity jump above this in one step while touching = impact
+    sliding_speed: float = 0.03  # m/s tangential contact-point speed above which contact slides
 
     @classmethod
     def fast(cls) -> "ResidualConfig":
-        return cls()
+        return cls(fit_maxiter=16, n_bootstrap=500, max_train_segments=6, max_heldout_segments=8, max_effects=2)
 
 
 @dataclass(frozen=True)
@@ -24,6 +130,11 @@ class EffectCandidate:
     heldout_error_after: float
     accepted: bool
     reason: str = ""
+    signature: float = float("nan")  # the effect's signature statistic on the residuals
+    initial_guess: dict[str, float] = field(default_factory=dict)
+    train_error_before: float = float("nan")
+    train_error_after: float = float("nan")
+    round: int = 0  # greedy round in which this fit was made (0-based)
 
 
 @dataclass(frozen=True)
@@ -34,3 +145,30 @@ class ResidualOutputs:
     error_before: dict[str, float]  # {"pos_err_m":…, "rot_err_deg":…}
     error_after: dict[str, float]
     by_mode: dict = field(default_factory=dict)  # residual statistics split by contact mode
+    model: ObjectModel | None = None  # the input model with the accepted effects added
+    recording_effects: dict[str, float] = field(default_factory=dict)  # accepted, not carried by the model
+    series: dict[str, np.ndarray] = field(default_factory=dict)  # per-frame data for the plots
+
+    def report(self) -> dict:
+        """The report.json ``residuals`` block."""
+        return {
+            "candidates": [
+                {
+                    "effect": c.effect,
+                    "params": dict(c.params),
+                    "heldout_error_before": c.heldout_error_before,
+                    "heldout_error_after": c.heldout_error_after,
+                    "accepted": c.accepted,
+                    "reason": c.reason,
+                    "signature": None if not np.isfinite(c.signature) else c.signature,
+                    "round": c.round,
+                }
+                for c in self.candidates
+            ],
+            "accepted": list(self.accepted),
+            "effects": dict(self.effects),
+            "recording_effects": dict(self.recording_effects),
+            "error_before": dict(self.error_before),
+            "error_after": dict(self.error_after),
+            "by_mode": self.by_mode,
+        }

@@ -1,0 +1,428 @@
+"""Close the loop: residuals of the fitted model → candidate effects → fit → held-out selection.
+
+Error of a rollout segment s (frames k of the segment, open loop from the tracked start state):
+``e_s = mean_k ( |p_sim,k − p_obs,k| + ρ · ∠(R_obs,kᵀ R_sim,k) )`` with ρ = ``rot_scale_m``
+(default: the object radius), so e is in metres.
+
+Fit of an effect with parameters θ (1–3 numbers, bounded): minimise the mean training error
+``E_train(θ) = mean_{s∈train} e_s(θ)``. One parameter: a coarse grid over the bounds (including
+the signature's guess and the null value), then bounded Brent search in the bracket around the best
+grid point. Several parameters: Nelder–Mead from the guess in coordinates scaled to the bounds,
+clipped to the bounds.
+
+Selection (greedy forward): in each round every remaining candidate is fitted on top of the effects
+already accepted; on the held-out segments, d_s = e_s(before) − e_s(after). A candidate passes when
+(a) mean(d)/mean(e_before) ≥ ``min_rel_improvement``, (b) the one-sided (1 − α) percentile-bootstrap
+lower bound of mean(d) over held-out segments is > 0, and (c) at least ``min_win_fraction`` of the
+held-out segments improve. The passing candidate with the largest mean(d) is accepted; the round
+repeats until none passes or ``max_effects`` are accepted.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize, minimize_scalar
+
+from service.errors import InvalidInput
+from service.model import ObjectModel
+from service.residuals.effects import REGISTRY, Effect, apply_effects, fold_into_model, null_params
+from service.residuals.modes import FREE, IMPACT, classify, mode_statistics, object_radius
+from service.residuals.types import (
+    MODES,
+    EffectCandidate,
+    ObservedTrajectory,
+    ResidualConfig,
+    ResidualInputs,
+    ResidualOutputs,
+    RobotPath,
+    SimRequest,
+)
+from service.transforms import make_X, mat_to_quat, quat_to_rotvec, rotation_angle, so3_exp
+
+
+@dataclass(frozen=True)
+class Segment:
+    traj: int
+    start: int
+    stop: int  # exclusive
+    t: np.ndarray  # (T,)
+    X_obs: np.ndarray  # (T,4,4)
+    tracked: np.ndarray  # (T,) bool
+    mode: np.ndarray  # (T,) int
+    X0: np.ndarray  # (4,4) start pose (local fit)
+    v0: np.ndarray  # (3,)
+    w0: np.ndarray  # (3,)
+    robot: RobotPath | None
+
+
+def _check(inputs: ResidualInputs) -> None:
+    if not inputs.trajectories:
+        raise InvalidInput("residuals", "no observed trajectory was given")
+    for k, tr in enumerate(inputs.trajectories):
+        n = len(tr.t)
+        if np.shape(tr.X_WO) != (n, 4, 4):
+            raise InvalidInput(f"trajectories[{k}]", f"X_WO must be (N,4,4) with N = len(t) = {n}, got {np.shape(tr.X_WO)}")
+        if n > 1 and not np.all(np.diff(tr.t) > 0):
+            raise InvalidInput(f"trajectories[{k}]", "times t must be strictly increasing")
+        for name in ("v_WO_W", "w_WO_O"):
+            a = getattr(tr, name)
+            if a is not None and np.shape(a) != (n, 3):
+                raise InvalidInput(f"trajectories[{k}]", f"{name} must be (N,3), got {np.shape(a)}")
+        if tr.tracked is not None and np.shape(tr.tracked) != (n,):
+            raise InvalidInput(f"trajectories[{k}]", "tracked must be (N,) bool")
+    if inputs.robot is not None and len(inputs.robot) != len(inputs.trajectories):
+        raise InvalidInput("robot", "needs one robot path (or None) per trajectory")
+
+
+def start_state(t: np.ndarray, X: np.ndarray, at: int, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Start pose and backward-difference velocities at frame ``at`` of a short window (t, X).
+
+    Positions and rotation vectors r = Log(R_atᵀ R) are fitted by quadratics in time (lines below 4
+    frames). Semi-implicit Euler with step h started with v₀ follows p(τ) = p₀ + (v₀ + a h/2) τ + a τ²/2,
+    so v₀ is the fitted curve's derivative at τ = −h/2 (likewise ω₀ for r).
+    """
+    k = len(t)
+    tau = t - t[at]
+    A = np.stack([np.ones(k), tau, 0.5 * tau**2], 1) if k >= 4 else np.stack([np.ones(k), tau], 1)
+    cp, *_ = np.linalg.lstsq(A, X[:, :3, 3], rcond=None)
+    R_ref = X[at, :3, :3]
+    r = quat_to_rotvec(mat_to_quat(np.swapaxes(R_ref, 0, 1)[None] @ X[:, :3, :3]))
+    cr, *_ = np.linalg.lstsq(A, r, rcond=None)
+    acc_p = cp[2] if len(cp) > 2 else 0.0
+    acc_r = cr[2] if len(cr) > 2 else 0.0
+    X0 = make_X(R_ref @ so3_exp(cr[0]), cp[0])
+    return X0, cp[1] - 0.5 * h * acc_p, cr[1] - 0.5 * h * acc_r
+
+
+def _fit_window_ok(mode: np.ndarray) -> bool:
+    """A start-state window must not straddle an impact or a flight/contact change."""
+    if (mode == IMPACT).any():
+        return False
+    free = mode == FREE
+    return bool(free.all() or (~free).all())
+
+
+def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: ResidualConfig) -> list[Segment]:
+    """Non-overlapping rollout blocks of ``segment_s`` along every trajectory.
+
+    The start state of a block comes from a quadratic fit over ``init_fit_frames`` frames centred on
+    its first frame (clipped at the trajectory ends): centring keeps the velocity error of tracking
+    noise ~4x below a one-sided fit. The same start state serves every model compared, so the paired
+    comparison stays fair. Blocks whose fit window straddles an impact or a flight/contact change are
+    skipped.
+    """
+    segs: list[Segment] = []
+    kfit = max(2, cfg.init_fit_frames)
+    for k, tr in enumerate(inputs.trajectories):
+        t = np.asarray(tr.t, float)
+        X = np.asarray(tr.X_WO, float)
+        n = len(t)
+        tracked = np.ones(n, bool) if tr.tracked is None else np.asarray(tr.tracked, bool)
+        robot = inputs.robot[k] if inputs.robot is not None else None
+        mode = modes[k]
+        i = min(kfit // 2, max(n - kfit, 0))  # first block starts where a centred fit exists
+        while i < n - 1:
+            j = int(np.searchsorted(t, t[i] + cfg.segment_s - 1e-9, side="left")) + 1
+            j = min(max(j, i + 2), n)
+            if n - j < cfg.min_segment_frames // 2:  # absorb a short tail
+                j = n
+            w0 = max(0, min(i - kfit // 2, n - kfit))
+            w1 = min(n, w0 + kfit)
+            at = i - w0
+            ok = (
+                j - i >= cfg.min_segment_frames
+                and tracked[w0:w1].all()
+                and tracked[i]
+                and _fit_window_ok(mode[w0:w1])
+            )
+            if ok:
+                dt = float(np.median(np.diff(t[w0:max(w1, w0 + 2)])))
+                h = dt / max(1, math.ceil(dt / cfg.sim_substep_s - 1e-9))
+                X0, v0, om0 = start_state(t[w0:w1], X[w0:w1], at, h)
+                segs.append(Segment(k, i, j, t[i:j], X[i:j], tracked[i:j], mode[i:j], X0, v0, om0, robot))
+            i = j if ok else i + 1
+    return segs
+
+
+def split_segments(segs: list[Segment], n_traj: int, cfg: ResidualConfig) -> tuple[list[Segment], list[Segment], np.ndarray]:
+    """Seeded split into training and held-out segments, and the held-out resampling units.
+
+    With >= 4 trajectories whole trajectories are held out (units = trajectories); otherwise time
+    blocks are (units = blocks). Both lists are capped by random subsampling.
+    """
+    rng = np.random.default_rng(cfg.seed)
+    if n_traj >= 4:
+        trajs = sorted({s.traj for s in segs})
+        perm = rng.permutation(trajs)
+        n_held = min(max(int(round(cfg.heldout_fraction * len(trajs))), 1), len(trajs) - 1)
+        held_t = set(int(x) for x in perm[:n_held])
+        held = [s for s in segs if s.traj in held_t]
+        train = [s for s in segs if s.traj not in held_t]
+    else:
+        perm = rng.permutation(len(segs))
+        n_held = min(max(int(round(cfg.heldout_fraction * len(segs))), 1), len(segs) - 1)
+        held = [segs[i] for i in sorted(perm[:n_held])]
+        train = [segs[i] for i in sorted(perm[n_held:])]
+    if len(train) > cfg.max_train_segments:
+        train = [train[i] for i in sorted(rng.choice(len(train), cfg.max_train_segments, replace=False))]
+    if len(held) > cfg.max_heldout_segments:
+        held = [held[i] for i in sorted(rng.choice(len(held), cfg.max_heldout_segments, replace=False))]
+    units = np.array([s.traj for s in held]) if n_traj >= 4 else np.arange(len(held))
+    return train, held, units
+
+
+class Evaluator:
+    """Rollout errors of a (model, effects) on a list of segments."""
+
+    def __init__(self, simulate, table_height: float, rot_scale: float):
+        self.simulate = simulate
+        self.table_height = table_height
+        self.rot_scale = rot_scale
+        self.calls = 0
+
+    def rollout(self, model: ObjectModel, effects: dict[str, float], seg: Segment) -> np.ndarray:
+        self.calls += 1
+        req = SimRequest(model, seg.X0, seg.v0, seg.w0, seg.t, self.table_height, seg.robot, effects)
+        return self.simulate(req)
+
+    def frame_errors(self, model, effects, seg) -> tuple[np.ndarray, np.ndarray]:
+        X = self.rollout(model, effects, seg)
+        pos = np.linalg.norm(X[:, :3, 3] - seg.X_obs[:, :3, 3], axis=1)
+        rot = rotation_angle(np.swapaxes(seg.X_obs[:, :3, :3], 1, 2) @ X[:, :3, :3])
+        bad = ~np.isfinite(pos) | ~np.isfinite(rot)
+        pos[bad], rot[bad] = 10.0, math.pi
+        return pos, rot
+
+    def errors(self, model, effects, segs) -> np.ndarray:
+        """(S,) scalar error per segment, m."""
+        out = np.empty(len(segs))
+        for i, s in enumerate(segs):
+            pos, rot = self.frame_errors(model, effects, s)
+            m = s.tracked
+            out[i] = float(np.mean(pos[m] + self.rot_scale * rot[m]))
+        return out
+
+    def by_mode(self, model, effects, segs) -> tuple[dict, dict]:
+        """Mean pos/rot error per mode over all frames of ``segs``, plus overall figures."""
+        P, R, M = [], [], []
+        for s in segs:
+            pos, rot = self.frame_errors(model, effects, s)
+            P.append(pos[s.tracked])
+            R.append(rot[s.tracked])
+            M.append(s.mode[s.tracked])
+        P, R, M = np.concatenate(P), np.concatenate(R), np.concatenate(M)
+        table = {}
+        for i, name in enumerate(MODES):
+            sel = M == i
+            table[name] = {
+                "frames": int(sel.sum()),
+                "pos_err_m": float(P[sel].mean()) if sel.any() else None,
+                "rot_err_deg": float(np.degrees(R[sel].mean())) if sel.any() else None,
+            }
+        overall = {"pos_err_m": float(P.mean()), "rot_err_deg": float(np.degrees(R.mean()))}
+        return overall, table
+
+
+def _fit(effect: Effect, guess, base_model, base_effects, chosen, ev: Evaluator, train, cfg) -> tuple[tuple, float]:
+    """Minimise the training error over the effect's parameters; returns (θ, E_train(θ))."""
+    lo, hi = np.array(effect.lower), np.array(effect.upper)
+    cache: dict[tuple, float] = {}
+
+    def loss(theta) -> float:
+        theta = effect.clip(theta)
+        key = tuple(round(x, 12) for x in theta)
+        if key not in cache:
+            model, sim = apply_effects(base_model, {**chosen, effect.name: theta})
+            cache[key] = float(ev.errors(model, {**base_effects, **sim}, train).mean())
+        return cache[key]
+
+    guess = effect.clip(guess)
+    if len(lo) == 1:
+        n_grid = max(5, min(9, cfg.fit_maxiter // 2))
+        grid = np.unique(np.concatenate([np.linspace(lo[0], hi[0], n_grid), [guess[0]]]))
+        null = null_params(effect, base_model)[0]
+        if np.isfinite(null) and lo[0] <= null <= hi[0]:
+            grid = np.unique(np.concatenate([grid, [null]]))
+        vals = np.array([loss((g,)) for g in grid])
+        b = int(np.argmin(vals))
+        a_, c_ = grid[max(b - 1, 0)], grid[min(b + 1, len(grid) - 1)]
+        if c_ > a_:
+            res = minimize_scalar(
+                lambda x: loss((x,)),
+                bounds=(a_, c_),
+                method="bounded",
+                options={"maxiter": max(cfg.fit_maxiter - len(grid), 4), "xatol": 1e-4 * (hi[0] - lo[0])},
+            )
+            cand = [(grid[b],), (float(res.x),)]
+        else:
+            cand = [(grid[b],)]
+        best = min(cand, key=loss)
+        return effect.clip(best), loss(best)
+    scale = hi - lo
+    x0 = (np.array(guess) - lo) / scale
+    simplex = [x0] + [np.clip(x0 + 0.25 * e, 0, 1) if x0[i] < 0.75 else x0 - 0.25 * e for i, e in enumerate(np.eye(len(lo)))]
+    res = minimize(
+        lambda z: loss(lo + np.clip(z, 0, 1) * scale),
+        x0,
+        method="Nelder-Mead",
+        options={"maxfev": cfg.fit_maxiter, "initial_simplex": np.array(simplex), "xatol": 1e-3, "fatol": 1e-6},
+    )
+    best = effect.clip(lo + np.clip(res.x, 0, 1) * scale)
+    return best, loss(best)
+
+
+def _decide(before: np.ndarray, after: np.ndarray, units: np.ndarray, cfg: ResidualConfig, rng) -> tuple[bool, str, float]:
+    """Acceptance rule on paired held-out errors; resampling is over ``units`` (trajectories or blocks)."""
+    d_seg = before - after
+    mb = float(before.mean())
+    rel = float(d_seg.mean() / mb) if mb > 0 else 0.0
+    uniq, inv = np.unique(units, return_inverse=True)
+    d = np.bincount(inv, weights=d_seg) / np.bincount(inv)  # mean improvement per unit
+    idx = rng.integers(0, len(d), size=(cfg.n_bootstrap, len(d)))
+    boot = d[idx].mean(1)
+    lower = float(np.quantile(boot, cfg.alpha))
+    wins = float(np.mean(d > 0))
+    why = (f"held-out error {rel:+.1%} (relative fall), bootstrap {1 - cfg.alpha:.0%} lower bound "
+           f"{lower:+.2e} m, improves {wins:.0%} of {len(d)} held-out units")
+    if rel < cfg.min_rel_improvement:
+        return False, f"rejected: fall below {cfg.min_rel_improvement:.0%}; " + why, rel
+    if lower <= 0:
+        return False, "rejected: improvement not above noise; " + why, rel
+    if wins < cfg.min_win_fraction:
+        return False, f"rejected: improves fewer than {cfg.min_win_fraction:.0%} of segments; " + why, rel
+    return True, "passes; " + why, rel
+
+
+def _carried_keys() -> set[str] | None:
+    """Effect keys the project's simulator registry understands (None: no registry, keep all)."""
+    try:
+        from service.sim import EFFECTS
+    except ImportError:
+        return None
+    return set(EFFECTS)
+
+
+def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> ResidualOutputs:
+    """Residuals by mode, candidate effects fitted on training segments, greedy held-out selection."""
+    _check(inputs)
+    report = progress or (lambda f, m: None)
+    model = inputs.model
+    has_robot = inputs.robot is not None and any(r is not None for r in inputs.robot)
+    report(0.0, "classifying contact modes")
+    modes = [
+        classify(model, tr, inputs.table_height, inputs.robot[k] if inputs.robot is not None else None, cfg)
+        for k, tr in enumerate(inputs.trajectories)
+    ]
+    stats = mode_statistics(model, inputs.trajectories, modes, inputs.table_height, inputs.step_residuals, cfg)
+    segs = make_segments(inputs, modes, cfg)
+    if len({s.traj for s in segs}) < 2 and len(segs) < 2:
+        raise InvalidInput("trajectories", f"need at least 2 rollout segments of >= {cfg.min_segment_frames} tracked frames, got {len(segs)}")
+    train, held, units = split_segments(segs, len(inputs.trajectories), cfg)
+
+    own_sim = None
+    simulate = inputs.simulate
+    if simulate is None:
+        from service.residuals.simulate import make_simulator
+
+        own_sim = simulate = make_simulator(cfg.sim_substep_s)
+    try:
+        rot_scale = cfg.rot_scale_m if cfg.rot_scale_m is not None else object_radius(model)
+        ev = Evaluator(simulate, inputs.table_height, rot_scale)
+        names = list(cfg.candidates) if cfg.candidates is not None else list(REGISTRY)
+        unknown = [n for n in names if n not in REGISTRY]
+        if unknown:
+            raise InvalidInput("ResidualConfig.candidates", f"unknown effects {unknown}; known: {sorted(REGISTRY)}")
+        names = [n for n in names if has_robot or not REGISTRY[n].needs_robot]
+        rng = np.random.default_rng(cfg.seed + 1)
+
+        chosen: dict[str, tuple] = {}
+        base_effects = dict(model.effects)
+        cur_model, cur_sim = apply_effects(model, chosen)
+        held_before0 = ev.errors(cur_model, {**base_effects, **cur_sim}, held)
+        held_cur = held_before0
+        train_cur = float(ev.errors(cur_model, {**base_effects, **cur_sim}, train).mean())
+        final: dict[str, EffectCandidate] = {}
+        remaining = list(names)
+        n_rounds = min(cfg.max_effects, len(names))
+        for rnd in range(n_rounds):
+            round_res = []
+            for ci, name in enumerate(remaining):
+                report((rnd + ci / max(len(remaining), 1)) / max(n_rounds, 1) * 0.9, f"round {rnd + 1}: fitting {name}")
+                eff = REGISTRY[name]
+                sig = float(eff.signature(stats))
+                guess = eff.guess(stats, model)
+                theta, e_train = _fit(eff, guess, model, base_effects, chosen, ev, train, cfg)
+                m_after, s_after = apply_effects(model, {**chosen, name: theta})
+                held_after = ev.errors(m_after, {**base_effects, **s_after}, held)
+                ok, why, rel = _decide(held_cur, held_after, units, cfg, rng)
+                cand = EffectCandidate(
+                    effect=name,
+                    params={k: float(v) for k, v in zip(eff.params, theta)},
+                    heldout_error_before=float(held_cur.mean()),
+                    heldout_error_after=float(held_after.mean()),
+                    accepted=False,
+                    reason=why,
+                    signature=sig,
+                    initial_guess={k: float(v) for k, v in zip(eff.params, guess)},
+                    train_error_before=train_cur,
+                    train_error_after=e_train,
+                    round=rnd,
+                )
+                round_res.append((ok, float((held_cur - held_after).mean()), cand, theta, held_after))
+                final[name] = cand
+            passing = [r for r in round_res if r[0]]
+            if not passing:
+                break
+            ok, gain, cand, theta, held_after = max(passing, key=lambda r: r[1])
+            final[cand.effect] = dataclasses.replace(cand, accepted=True, reason="accepted: " + cand.reason.removeprefix("passes; "))
+            for r in round_res:
+                if r[0] and r[2].effect != cand.effect:
+                    final[r[2].effect] = dataclasses.replace(r[2], reason=f"passes alone but {cand.effect} explains more; refitted next round")
+            chosen[cand.effect] = theta
+            remaining.remove(cand.effect)
+            held_cur = held_after
+            train_cur = cand.train_error_after
+            if not remaining:
+                break
+
+        report(0.92, "errors by mode before/after")
+        new_model, new_sim = apply_effects(model, chosen)
+        accepted_effects: dict[str, float] = {}
+        for name, theta in chosen.items():
+            accepted_effects.update({k: float(v) for k, v in zip(REGISTRY[name].params, theta)})
+        out_model, recording = fold_into_model(new_model, accepted_effects, _carried_keys())
+        overall_b, table_b = ev.by_mode(model, base_effects, held)
+        overall_a, table_a = ev.by_mode(new_model, {**base_effects, **new_sim}, held) if chosen else (overall_b, table_b)
+        by_mode = {
+            "residual": stats,
+            "rollout_before": table_b,
+            "rollout_after": table_a,
+            "segments": {"train": len(train), "heldout": len(held)},
+            "rot_scale_m": rot_scale,
+            "rollouts": ev.calls,
+            "recording_effects": recording,
+        }
+        series = {
+            "heldout_error_before": held_before0,
+            "heldout_error_after": held_cur,
+        }
+        ordered = [final[n] for n in names if n in final]
+        report(1.0, "done")
+        return ResidualOutputs(
+            candidates=tuple(ordered),
+            accepted=tuple(chosen),
+            effects=accepted_effects,
+            error_before={**overall_b, "scalar_m": float(held_before0.mean())},
+            error_after={**overall_a, "scalar_m": float(held_cur.mean())},
+            by_mode=by_mode,
+            model=out_model,
+            series=series,
+            recording_effects=recording,
+        )
+    finally:
+        if own_sim is not None:
+            own_sim.close()

@@ -1,0 +1,230 @@
+"""Open-loop rollouts of an ObjectModel in pybullet, with the effect parameters of the residual loop.
+
+The object is a rigid body (mass m, CoM c_O, inertia I about c, principal axes) with the model's
+convex collision geometry, on the half-space ``z = table_height + table_offset``; the robot, when
+there is one, is a sphere of radius r dragged along its recorded path by a stiff fixed constraint.
+Integration is pybullet's semi-implicit Euler at a sub-step ``h = dt / ceil(dt / sim_substep_s)``.
+
+Pose bookkeeping: pybullet's base frame is the inertial frame I (origin at the CoM, axes the
+principal axes), so ``X_WI = X_WO X_OI`` with ``X_OI = (R_OI, c_O)``, and the start velocity of the
+CoM is ``v_WI = v_WO + ω_W × (R_WO c_O)``. The start velocity is the backward-difference velocity of
+the data (``p[k] = p[k-1] + dt v[k]``), which is what semi-implicit Euler expects.
+
+Effect keys read here (all optional; absent = the nominal model, see ``service.residuals.effects``).
+Names and meanings are those of ``service.sim.effects`` where both exist, so an ``ObjectModel.effects``
+means the same in both simulators:
+``restitution`` (object; table and sphere have 1, Bullet multiplies), ``linear_damping`` and
+``angular_damping`` (viscous rates b, 1/s: free motion v(t) = v(0) e^{−bt}; Bullet gets 1 − e^{−b}),
+``table_tilt_x`` / ``table_tilt_y`` (rad; g = R_y(ty) R_x(tx) g), ``clock_offset`` (s, robot path read
+at t + δ), ``friction_object_table`` (replaces μ_OT), ``friction_scale_robot`` (multiplies μ_OR), and
+three keys of the recording rather than of the object: ``gravity_scale`` (|g| = 9.81 s),
+``time_scale`` (physical seconds per data second) and ``table_offset`` (m, added to the table height).
+
+This simulator exists beside ``service.sim.rollout`` because the residual loop needs thousands of
+short rollouts: it steps Bullet without per-step Python work (poses are read once per output frame
+and converted in one batch). ``service_sim_simulator`` wraps ``service.sim.rollout`` in the same
+``SimRequest -> X_WO`` interface, for cross-checks and for callers that want one physics everywhere.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from service.model import ObjectModel
+from service.residuals.types import SimRequest
+from service.transforms import make_X, mat_to_quat, quat_to_mat, so3_exp
+
+G = 9.81
+FAR_ABOVE_M = 50.0  # where the robot sphere is parked for tosses without a robot (service.sim needs one)
+
+
+def gravity_vector(effects: dict[str, float]) -> np.ndarray:
+    """World gravity (3,) implied by the gravity effects (scale, then tilt about x, then y)."""
+    g = np.array([0.0, 0.0, -G * float(effects.get("gravity_scale", 1.0))])
+    g = so3_exp(np.array([float(effects.get("table_tilt_x", 0.0)), 0.0, 0.0])) @ g
+    g = so3_exp(np.array([0.0, float(effects.get("table_tilt_y", 0.0)), 0.0])) @ g
+    return g
+
+
+def _principal(model: ObjectModel) -> tuple[np.ndarray, np.ndarray]:
+    """Principal moments (3,) and rotation R_OI (3,3) (right-handed) of the model's inertia."""
+    I = 0.5 * (np.asarray(model.inertia_O, float) + np.asarray(model.inertia_O, float).T)
+    w, V = np.linalg.eigh(I)
+    if np.linalg.det(V) < 0:
+        V[:, 2] = -V[:, 2]
+    return np.maximum(w, 1e-9), V
+
+
+def _frictions(model: ObjectModel, eff: dict[str, float]) -> tuple[float, float]:
+    mu_t = float(eff.get("friction_object_table", model.friction.object_table))
+    mu_r = float(model.friction.object_robot) * float(eff.get("friction_scale_robot", 1.0))
+    return mu_t, mu_r
+
+
+class BulletSimulator:
+    """Callable ``SimRequest -> (T,4,4)`` rollouts; owns one pybullet DIRECT client (call ``close``)."""
+
+    def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0):
+        import pybullet
+
+        self._p = pybullet
+        self._cid = pybullet.connect(pybullet.DIRECT)
+        self.substep = float(sim_substep_s)
+        self.margin = float(collision_margin)
+
+    def close(self) -> None:
+        if getattr(self, "_cid", None) is not None:
+            try:
+                self._p.disconnect(physicsClientId=self._cid)
+            except Exception:  # already gone
+                pass
+            self._cid = None
+
+    def __enter__(self) -> "BulletSimulator":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __del__(self):
+        self.close()
+
+    def __call__(self, req: SimRequest) -> np.ndarray:
+        p, cid = self._p, self._cid
+        if cid is None:
+            raise RuntimeError("simulator is closed")
+        eff = {**req.model.effects, **req.effects}
+        model = req.model
+        t = np.asarray(req.t, float)
+        T = len(t)
+        out = np.zeros((T, 4, 4))
+        out[0] = req.X_WO0
+        if T == 1:
+            return out
+        s_time = float(eff.get("time_scale", 1.0))
+        dts = np.diff(t) * s_time  # physical durations of the frame intervals
+        n_sub = np.maximum(1, np.ceil(dts / self.substep - 1e-9)).astype(int)
+        h = float(np.median(dts / n_sub))
+
+        p.resetSimulation(physicsClientId=cid)
+        p.setGravity(*gravity_vector(eff), physicsClientId=cid)
+        p.setPhysicsEngineParameter(
+            fixedTimeStep=h, numSolverIterations=50, numSubSteps=0, deterministicOverlappingPairs=1,
+            restitutionVelocityThreshold=0.05, physicsClientId=cid,
+        )
+        mu_t, mu_r = _frictions(model, eff)
+        table_z = float(req.table_height) + float(eff.get("table_offset", 0.0))
+        plane = p.createCollisionShape(p.GEOM_PLANE, physicsClientId=cid)
+        table = p.createMultiBody(0, plane, basePosition=[0, 0, table_z], physicsClientId=cid)
+        p.changeDynamics(table, -1, lateralFriction=mu_t, restitution=1.0, physicsClientId=cid)
+
+        moments, R_OI = _principal(model)
+        com = np.asarray(model.com_O, float)
+        verts = [np.asarray(piece.vertices, float) for piece in model.collision if len(piece.vertices)]
+        V_O = np.concatenate(verts, 0) if verts else np.asarray(model.visual.vertices, float)
+        V_I = (V_O - com) @ R_OI  # p_I = R_OIᵀ (p_O − c); one convex hull of all pieces
+        shape = p.createCollisionShape(p.GEOM_MESH, vertices=V_I.tolist(), physicsClientId=cid)
+        X_OI = make_X(R_OI, com)
+        X_WI0 = req.X_WO0 @ X_OI
+        q = mat_to_quat(X_WI0[:3, :3])
+        body = p.createMultiBody(
+            float(model.mass), shape, basePosition=X_WI0[:3, 3].tolist(), baseOrientation=[q[1], q[2], q[3], q[0]],
+            physicsClientId=cid,
+        )
+        p.changeDynamics(
+            body, -1, localInertiaDiagonal=moments.tolist(), lateralFriction=1.0,
+            restitution=float(eff.get("restitution", 0.0)),
+            linearDamping=float(1.0 - math.exp(-float(eff.get("linear_damping", 0.0)))),
+            angularDamping=float(1.0 - math.exp(-float(eff.get("angular_damping", 0.0)))),
+            collisionMargin=self.margin, activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING, physicsClientId=cid,
+        )
+        R0 = req.X_WO0[:3, :3]
+        w_W = R0 @ (np.asarray(req.w0_WO_O, float) / s_time)
+        v_WI = np.asarray(req.v0_WO_W, float) / s_time + np.cross(w_W, R0 @ com)
+        p.resetBaseVelocity(body, v_WI.tolist(), w_W.tolist(), physicsClientId=cid)
+
+        ee_path = None
+        if req.robot is not None:
+            rb = req.robot
+            rt = np.asarray(rb.t, float)
+            rp = np.asarray(rb.p_WE, float)
+            # sphere targets at every sub-step, on the data clock shifted by the clock offset
+            tt = np.concatenate([t[k] + (t[k + 1] - t[k]) * (np.arange(1, n_sub[k] + 1) / n_sub[k]) for k in range(T - 1)])
+            tt = np.concatenate([[t[0]], tt]) + float(eff.get("clock_offset", 0.0))
+            ee_path = np.stack([np.interp(tt, rt, rp[:, i]) for i in range(3)], 1)
+            sshape = p.createCollisionShape(p.GEOM_SPHERE, radius=float(rb.radius), physicsClientId=cid)
+            sphere = p.createMultiBody(10.0, sshape, basePosition=ee_path[0].tolist(), physicsClientId=cid)
+            p.changeDynamics(sphere, -1, lateralFriction=mu_r, restitution=1.0, linearDamping=0.0,
+                             angularDamping=0.0, physicsClientId=cid)
+            p.setCollisionFilterPair(sphere, table, -1, -1, 0, physicsClientId=cid)
+            cons = p.createConstraint(sphere, -1, -1, -1, p.JOINT_FIXED, [0, 0, 0], [0, 0, 0],
+                                      ee_path[0].tolist(), physicsClientId=cid)
+
+        pos = np.zeros((T - 1, 3))
+        quat = np.zeros((T - 1, 4))
+        j = 0
+        for k in range(T - 1):
+            for _ in range(int(n_sub[k])):
+                j += 1
+                if ee_path is not None:
+                    p.changeConstraint(cons, ee_path[j].tolist(), maxForce=5000.0, physicsClientId=cid)
+                p.stepSimulation(physicsClientId=cid)
+            ps, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
+            pos[k] = ps
+            quat[k] = (orn[3], orn[0], orn[1], orn[2])
+        X_WI = make_X(quat_to_mat(quat), pos)
+        R_IO = R_OI.T
+        out[1:, :3, :3] = X_WI[:, :3, :3] @ R_IO
+        out[1:, :3, 3] = pos - out[1:, :3, :3] @ com
+        out[1:, 3, 3] = 1.0
+        return out
+
+
+def make_simulator(sim_substep_s: float = 0.002) -> BulletSimulator:
+    """The built-in simulator used when the caller injects none."""
+    return BulletSimulator(sim_substep_s)
+
+
+def service_sim_simulator(sim_cfg=None):
+    """``SimRequest -> X_WO`` through ``service.sim.rollout`` (one fresh Bullet world per call).
+
+    Keys that ``service.sim`` lacks are handled here: ``gravity_scale`` through an extended effect
+    registry, ``table_offset`` by moving the table, ``time_scale`` by scaling times and start velocities;
+    tosses park the sphere far above the table.
+    """
+    from dataclasses import replace
+
+    from service.sim import EFFECTS, EffectSpec, RobotPath as SimPath, SimConfig, rollout
+
+    registry = dict(EFFECTS)
+    if "gravity_scale" not in registry:
+        registry["gravity_scale"] = EffectSpec(
+            lambda s, v: replace(s, gravity_W=tuple(float(x) * float(v) for x in s.gravity_W)),
+            "gravity magnitude factor", 1.0, (0.5, 1.5),
+        )
+    own = {"table_offset", "time_scale"} - set(registry)
+    cfg = sim_cfg if sim_cfg is not None else SimConfig.fast()
+
+    def simulate(req: SimRequest) -> np.ndarray:
+        eff = {**req.model.effects, **req.effects}
+        st = float(eff.get("time_scale", 1.0)) if "time_scale" in own else 1.0
+        dz = float(eff.get("table_offset", 0.0)) if "table_offset" in own else 0.0
+        sim_eff = {k: v for k, v in eff.items() if k not in own}
+        model = replace(req.model, effects=sim_eff)
+        t = np.asarray(req.t, float)
+        t_phys = t[0] + st * (t - t[0])
+        if req.robot is not None:
+            rt = np.asarray(req.robot.t, float)
+            path = SimPath(t[0] + st * (rt - t[0]), np.asarray(req.robot.p_WE, float))
+            radius = float(req.robot.radius)
+        else:
+            far = np.array([0.0, 0.0, req.table_height + FAR_ABOVE_M])
+            path = SimPath(np.array([t_phys[0] - 1.0, t_phys[-1] + 1.0]), np.stack([far, far]))
+            radius = 0.01
+        r = rollout(model, req.X_WO0, np.asarray(req.v0_WO_W, float) / st, np.asarray(req.w0_WO_O, float) / st,
+                    path, req.table_height + dz, radius, cfg, t_out=t_phys, effects=registry)
+        return r.X_WO
+
+    return simulate
