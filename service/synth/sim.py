@@ -1,0 +1,389 @@
+"""Physics of a synthetic session: pybullet (DIRECT) rigid-body simulation of a robot sphere acting on an object.
+
+Model
+-----
+- Table: a static box whose top is the plane z = h_T in W (world = robot base, z up). Gravity
+  g = 9.81 m/s^2 along -z, or tilted by the hidden ``table_tilt`` (rotation about world x then y).
+- Object: one rigid body whose collision shape is the compound of the catalogue's convex parts
+  (exactly the exported mesh for convex objects). Mass m, inertia of the uniform-density solid about its
+  centroid, CoM = centroid + hidden ``com_offset``. Bullet combines friction and restitution of a pair
+  by product, so object = (mu 1, e), table = (mu_OT, 1), sphere = (mu_OR, 1) give the pair values
+  mu_OT, mu_OR and restitution e.
+- End effector: a dynamic sphere (radius 0.0195 m, mass m_E) that does not collide with the table, its
+  spin reset every step (rigidly held), driven by a Cartesian impedance law with gravity compensation:
+      F = K (x_cmd - x) - D v + m_E (-g),   K = 1500 N/m, D = 2 sqrt(K m_E)  (critically damped).
+  ``x_cmd(t)`` is a piecewise cubic (smooth-step) path of strokes planned from the current object pose
+  (push low / pivot high and return / topple high and lift away), as a tele-operator would.
+- Semi-implicit Euler at ``physics_hz`` (240 Hz default); the object state is sampled at the frame
+  times i / fps, the robot at every physics step.
+Hidden viscous damping b (1/s) uses Bullet's per-step factor (1 - d)^dt with d = 1 - exp(-b).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as pb
+
+from service.synth.objects import SynthObject
+from service.synth.types import HiddenEffects
+from service.transforms import make_X, mat_to_quat, quat_to_mat, so3_exp
+
+EE_RADIUS = 0.0195
+EE_MASS = 1.0
+EE_STIFFNESS = 1500.0
+EE_DAMPING = 2.0 * np.sqrt(EE_STIFFNESS * EE_MASS)
+GRAVITY = 9.81
+TABLE_CENTRE_XY = (0.5, 0.0)
+TABLE_HALF = (0.8, 0.8, 0.02)
+
+
+def xyzw(q_wxyz: np.ndarray) -> list[float]:
+    return [float(q_wxyz[1]), float(q_wxyz[2]), float(q_wxyz[3]), float(q_wxyz[0])]
+
+
+def wxyz(q_xyzw) -> np.ndarray:
+    return np.array([q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]], float)
+
+
+def pose_from_pb(pos, orn) -> np.ndarray:
+    return make_X(quat_to_mat(wxyz(orn)), np.asarray(pos, float))
+
+
+@dataclass(frozen=True)
+class PhysicsRecord:
+    """What the simulation produced (all on the frame clock; robot.csv adds the clock offset)."""
+
+    frame_t: np.ndarray  # (N,) s
+    X_WM: np.ndarray  # (N,4,4) pose of the mesh frame per frame
+    ee_frames: np.ndarray  # (N,3) sphere centre at the frame times
+    robot_t: np.ndarray  # (M,) s
+    robot_p: np.ndarray  # (M,3) actual sphere centre
+    robot_cmd: np.ndarray  # (M,3) commanded sphere centre
+    contact: np.ndarray  # (M,) bool robot-object contact at each physics step
+    gravity: np.ndarray  # (3,) m/s^2 in W
+    com_M: np.ndarray  # (3,) CoM in the mesh frame
+    inertia_M: np.ndarray  # (3,3) inertia about the CoM, mesh-frame axes, kg m^2
+    strokes: tuple[dict, ...]  # the planned strokes (kind, heading, contact height, times)
+
+
+# ------------------------------------------------------------------------------------------- planner
+class _Path:
+    """Piecewise smooth-step path of the commanded sphere centre."""
+
+    def __init__(self, p0: np.ndarray | None):
+        self.segs: list[tuple[float, float, np.ndarray, np.ndarray, str]] = []
+        self.t_end = 0.0
+        self.p_end = None if p0 is None else np.asarray(p0, float)
+
+    def move(self, p1, duration: float, profile: str = "smooth") -> None:
+        p1 = np.asarray(p1, float)
+        duration = max(float(duration), 1e-3)
+        self.segs.append((self.t_end, self.t_end + duration, self.p_end, p1, profile))
+        self.t_end += duration
+        self.p_end = p1
+
+    def hold(self, duration: float) -> None:
+        self.move(self.p_end, duration)
+
+    def __call__(self, t: float) -> np.ndarray:
+        for t0, t1, a, b, prof in reversed(self.segs):
+            if t >= t0:
+                tau = min(max((t - t0) / (t1 - t0), 0.0), 1.0)
+                s = tau if prof == "linear" else tau * tau * (3.0 - 2.0 * tau)
+                return a + (b - a) * s
+        return (self.segs[0][2] if self.segs else self.p_end).copy()
+
+
+class _Planner:
+    """Plans strokes (push / pivot / topple) from the object's current pose, like a tele-operator."""
+
+    def __init__(self, interaction: str, obj: SynthObject, table_h: float, rng: np.random.Generator, lateral: np.ndarray, duration: float, home_xy: np.ndarray):
+        self.interaction = interaction
+        self.obj = obj
+        self.hull = np.asarray(obj.mesh.convex_hull.vertices, float)
+        self.table_h = table_h
+        self.rng = rng
+        self.lateral = lateral / np.linalg.norm(lateral)
+        self.duration = duration
+        self.home_xy = np.asarray(home_xy, float)
+        self.strokes: list[dict] = []
+        self.tiny = duration < 3.0
+
+    def _heading(self, X_WM: np.ndarray) -> np.ndarray:
+        c = X_WM[:2, 3]
+        if not self.strokes:
+            base = self.lateral * self.rng.choice([-1.0, 1.0])
+            ang = self.rng.uniform(-0.5, 0.5)
+        else:
+            to_home = self.home_xy - c
+            if np.linalg.norm(to_home) > 0.04:
+                base = to_home / np.linalg.norm(to_home)
+                ang = self.rng.uniform(-0.6, 0.6)
+            else:
+                prev = self.strokes[-1]["heading"]
+                base = -np.asarray(prev)
+                ang = self.rng.uniform(-1.2, 1.2)
+        ca, sa = np.cos(ang), np.sin(ang)
+        d = np.array([ca * base[0] - sa * base[1], sa * base[0] + ca * base[1]])
+        return d / np.linalg.norm(d)
+
+    def plan(self, path: _Path, X_WM: np.ndarray, first: bool, initial_hold: float = 0.0) -> None:
+        """Append one stroke (with its approach) to ``path``, starting at path.t_end."""
+        kind = self.interaction if (first or self.interaction == "pivot") else "push"
+        if kind == "topple" and any(s["kind"] == "topple" for s in self.strokes):
+            kind = "push"
+        V = self.hull @ X_WM[:3, :3].T + X_WM[:3, 3]
+        top = float(V[:, 2].max())
+        H = top - self.table_h
+        c = X_WM[:3, 3]
+        d2 = self._heading(X_WM)
+        d = np.array([d2[0], d2[1], 0.0])
+        rel = V[:, :2] - c[:2]
+        s_back = float((rel @ -d2).max())
+        s_front = float((rel @ d2).max())
+        r = EE_RADIUS
+        if kind == "push":
+            hc = np.clip(0.3 * H, r + 0.003, max(H - 0.6 * r, r + 0.003))
+        elif kind == "pivot":
+            hc = max(0.8 * H, r + 0.003)
+        else:
+            hc = max(0.85 * H, r + 0.003)
+        hc = min(hc, max(H - 0.5 * r, r + 0.003))
+        z = self.table_h + hc
+        gap = 0.02
+        start = np.array([c[0], c[1], z]) - d * (s_back + r + gap)
+        # distance along d from the start to the surface at the contact height
+        hit = self._surface_distance(V, start, d)
+        approach = (hit - r) if hit is not None else gap
+        h_com = c[2] - self.table_h
+        if kind == "push":
+            travel = float(self.rng.uniform(0.04, 0.06) if self.tiny else self.rng.uniform(0.05, 0.10))
+            speed = 0.08
+        elif kind == "pivot":
+            th_tip = np.arctan2(s_front, max(h_com, 1e-3))
+            a = 0.55 * th_tip
+            w = s_front + s_back
+            travel = w * (1 - np.cos(a)) + hc * np.sin(a)
+            speed = 0.05
+        else:
+            th_tip = np.arctan2(s_front, max(h_com, 1e-3))
+            a = min(th_tip + 0.45, 1.2)
+            w = s_front + s_back
+            travel = w * (1 - np.cos(a)) + hc * np.sin(a)
+            speed = 0.09
+        z_safe = top + r + 0.04
+        if path.p_end is None:  # the session starts with the sphere resting at the stroke start
+            path.p_end = start
+            path.hold(initial_hold)
+        # approach: lift, traverse, descend (skipped when already at the start)
+        if np.linalg.norm(path.p_end - start) > 0.005:
+            p = path.p_end
+            lift = np.array([p[0], p[1], max(p[2], z_safe)])
+            above = np.array([start[0], start[1], max(p[2], z_safe)])
+            path.move(lift, 0.15 + abs(lift[2] - p[2]) / 0.25)
+            path.move(above, 0.2 + np.linalg.norm(above - lift) / 0.3)
+            path.move(start, 0.2 + abs(above[2] - start[2]) / 0.25)
+        t_contact = path.t_end
+        end = start + d * (approach + travel)
+        path.move(end, (approach + travel) / speed * 1.5)  # smooth-step: peak speed 1.5x mean
+        if kind == "pivot":
+            path.hold(0.25)
+            path.move(start + d * approach * 0.5, (travel + 0.5 * approach) / speed * 1.5)
+            back = path.p_end + np.array([0, 0, 0]) - d * 0.02
+            path.move(back, 0.3)
+        elif kind == "topple":
+            path.move(end + np.array([0, 0, 0.10]) - 0.03 * d, 0.35)
+        else:
+            path.move(end - d * 0.03, 0.35)
+        self.strokes.append(
+            dict(kind=kind, heading=[float(d2[0]), float(d2[1])], contact_height=float(hc), t_start=float(t_contact), t_end=float(path.t_end), travel=float(travel))
+        )
+
+    @staticmethod
+    def _surface_distance(V: np.ndarray, start: np.ndarray, d: np.ndarray) -> float | None:
+        """Distance along d from ``start`` to the convex hull of V (points (n,3)), or None if missed."""
+        from scipy.spatial import ConvexHull
+
+        try:
+            hull = ConvexHull(V)
+        except Exception:
+            return None
+        A, b = hull.equations[:, :3], hull.equations[:, 3]  # A x + b <= 0 inside
+        t_in, t_out = -np.inf, np.inf
+        num = -(A @ start + b)
+        den = A @ d
+        for n_, d_ in zip(num, den):
+            if abs(d_) < 1e-12:
+                if n_ < 0:
+                    return None
+                continue
+            t = n_ / d_
+            if d_ < 0:
+                t_in = max(t_in, t)
+            else:
+                t_out = min(t_out, t)
+        if t_in > t_out or t_out < 0:
+            return None
+        return float(max(t_in, 0.0))
+
+
+# ------------------------------------------------------------------------------------------- physics
+def _inertia(obj: SynthObject) -> np.ndarray:
+    """Inertia (3,3) of the uniform-density solid about its centroid, kg m^2."""
+    return np.asarray(obj.mesh.moment_inertia, float) * (obj.mass / obj.mesh.mass)
+
+
+def simulate(
+    obj: SynthObject,
+    *,
+    interaction: str,
+    table_h: float,
+    start_xy: np.ndarray,
+    start_yaw: float,
+    lateral: np.ndarray,
+    n_frames: int,
+    fps: float,
+    physics_hz: float,
+    mu_ot: float,
+    mu_or: float,
+    effects: HiddenEffects,
+    rng: np.random.Generator,
+    log_margin: float = 0.2,
+    progress=None,
+) -> PhysicsRecord:
+    steps_per_frame = int(round(physics_hz / fps))
+    if abs(steps_per_frame * fps - physics_hz) > 1e-6:
+        raise ValueError(f"physics_hz {physics_hz} must be a multiple of fps {fps}")
+    dt = 1.0 / physics_hz
+    n_steps = (n_frames - 1) * steps_per_frame
+    duration = n_frames / fps
+
+    cid = pb.connect(pb.DIRECT)
+    tmp = tempfile.TemporaryDirectory(prefix="vysics-synth-")
+    try:
+        pb.setTimeStep(dt, physicsClientId=cid)
+        pb.setPhysicsEngineParameter(numSolverIterations=60, deterministicOverlappingPairs=1, physicsClientId=cid)
+        tilt = np.asarray(effects.table_tilt, float)
+        R_tilt = so3_exp(np.array([0.0, tilt[1], 0.0])) @ so3_exp(np.array([tilt[0], 0.0, 0.0]))
+        g = R_tilt @ np.array([0.0, 0.0, -GRAVITY])
+        pb.setGravity(*g.tolist(), physicsClientId=cid)
+
+        # table
+        tcol = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=TABLE_HALF, physicsClientId=cid)
+        table = pb.createMultiBody(0.0, tcol, -1, [TABLE_CENTRE_XY[0], TABLE_CENTRE_XY[1], table_h - TABLE_HALF[2]], physicsClientId=cid)
+        mu_true = effects.friction_object_table if effects.friction_object_table is not None else mu_ot
+        pb.changeDynamics(table, -1, lateralFriction=mu_true, restitution=1.0, rollingFriction=0.0, spinningFriction=0.0, physicsClientId=cid)
+
+        # object: compound of convex parts; inertial frame = principal axes at the CoM
+        if len(obj.parts) == 1:
+            ocol = pb.createCollisionShape(pb.GEOM_MESH, vertices=np.asarray(obj.parts[0].convex_hull.vertices).tolist(), physicsClientId=cid)
+        else:
+            files = []
+            for k, part in enumerate(obj.parts):
+                f = os.path.join(tmp.name, f"part{k}.obj")
+                part.convex_hull.export(f)
+                files.append(f)
+            ocol = pb.createCollisionShapeArray(shapeTypes=[pb.GEOM_MESH] * len(files), fileNames=files, physicsClientId=cid)
+        com_M = np.asarray(effects.com_offset, float)
+        I_M = _inertia(obj)
+        evals, evecs = np.linalg.eigh(I_M)
+        if np.linalg.det(evecs) < 0:
+            evecs[:, 2] *= -1
+        X_MI = make_X(evecs, com_M)  # inertial frame in the mesh frame
+        R0 = so3_exp(np.array([0.0, 0.0, start_yaw]))
+        V0 = np.asarray(obj.mesh.vertices) @ R0.T
+        z0 = table_h - V0[:, 2].min() + 0.0005
+        X_WM0 = make_X(R0, np.array([start_xy[0], start_xy[1], z0]))
+        body = pb.createMultiBody(
+            obj.mass,
+            ocol,
+            -1,
+            X_WM0[:3, 3].tolist(),  # createMultiBody takes the link (mesh) frame ...
+            xyzw(mat_to_quat(X_WM0[:3, :3])),
+            baseInertialFramePosition=com_M.tolist(),
+            baseInertialFrameOrientation=xyzw(mat_to_quat(evecs)),
+            physicsClientId=cid,
+        )
+        # ... while getBasePositionAndOrientation reports the inertial frame: X_WM = X_WI @ inv(X_MI)
+        lin_d = 1.0 - np.exp(-effects.linear_damping)
+        ang_d = 1.0 - np.exp(-effects.angular_damping)
+        pb.changeDynamics(
+            body, -1, lateralFriction=1.0, restitution=effects.restitution, rollingFriction=0.0, spinningFriction=0.0,
+            linearDamping=lin_d, angularDamping=ang_d, localInertiaDiagonal=evals.tolist(), physicsClientId=cid,
+        )
+
+        # end-effector sphere
+        scol = pb.createCollisionShape(pb.GEOM_SPHERE, radius=EE_RADIUS, physicsClientId=cid)
+        sphere = pb.createMultiBody(EE_MASS, scol, -1, [start_xy[0], start_xy[1], table_h + 0.6], physicsClientId=cid)
+        pb.changeDynamics(sphere, -1, lateralFriction=mu_or, restitution=1.0, rollingFriction=0.0, spinningFriction=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
+        pb.setCollisionFilterPair(sphere, table, -1, -1, 0, physicsClientId=cid)
+
+        def X_WM_now() -> np.ndarray:
+            pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
+            return pose_from_pb(pos, orn) @ np.linalg.inv(X_MI)
+
+        def step_robot(cmd: np.ndarray) -> None:
+            x, _ = pb.getBasePositionAndOrientation(sphere, physicsClientId=cid)
+            v, _ = pb.getBaseVelocity(sphere, physicsClientId=cid)
+            F = EE_STIFFNESS * (cmd - np.asarray(x)) - EE_DAMPING * np.asarray(v) - EE_MASS * g
+            pb.applyExternalForce(sphere, -1, F.tolist(), list(x), pb.WORLD_FRAME, physicsClientId=cid)
+            pb.resetBaseVelocity(sphere, angularVelocity=[0.0, 0.0, 0.0], physicsClientId=cid)
+
+        # settle the object with the robot parked above
+        park = np.array([start_xy[0], start_xy[1], table_h + 0.6])
+        for _ in range(int(0.4 * physics_hz)):
+            step_robot(park)
+            pb.stepSimulation(physicsClientId=cid)
+
+        planner = _Planner(interaction, obj, table_h, rng, np.asarray(lateral, float), duration, np.asarray(start_xy, float))
+        path = _Path(None)
+        planner.plan(path, X_WM_now(), first=True, initial_hold=0.2 if duration < 3 else float(rng.uniform(0.3, 0.8)))
+        start = path(0.0)
+        pb.resetBasePositionAndOrientation(sphere, start.tolist(), [0, 0, 0, 1], physicsClientId=cid)
+        pb.resetBaseVelocity(sphere, [0, 0, 0], [0, 0, 0], physicsClientId=cid)
+        for _ in range(int(0.1 * physics_hz)):
+            step_robot(start)
+            pb.stepSimulation(physicsClientId=cid)
+        first = False
+
+        frame_t = np.arange(n_frames) / fps
+        X_frames = np.zeros((n_frames, 4, 4))
+        ee_frames = np.zeros((n_frames, 3))
+        # the robot log runs log_margin beyond the frames on both sides (covers a shifted robot clock)
+        n_pre = n_post = int(np.ceil(log_margin * physics_hz))
+        ks = np.arange(-n_pre, n_steps + n_post + 1)
+        robot_t = ks * dt
+        robot_p = np.zeros((len(ks), 3))
+        robot_cmd = np.zeros((len(ks), 3))
+        contact = np.zeros(len(ks), bool)
+        for j, k in enumerate(ks):
+            t = k * dt
+            while path.t_end <= t + 1e-9 and path.t_end < duration:
+                planner.plan(path, X_WM_now(), first=first)
+                first = False
+            cmd = path(t)
+            x, _ = pb.getBasePositionAndOrientation(sphere, physicsClientId=cid)
+            robot_p[j] = x
+            robot_cmd[j] = cmd
+            cps = pb.getContactPoints(sphere, body, physicsClientId=cid)
+            contact[j] = any(cp[8] <= 5e-4 for cp in cps)
+            if 0 <= k <= n_steps and k % steps_per_frame == 0:
+                i = k // steps_per_frame
+                X_frames[i] = X_WM_now()
+                ee_frames[i] = x
+                if progress is not None and i % 10 == 0:
+                    progress(i / n_frames, "simulating")
+            if k < ks[-1]:
+                step_robot(cmd)
+                pb.stepSimulation(physicsClientId=cid)
+        return PhysicsRecord(
+            frame_t=frame_t, X_WM=X_frames, ee_frames=ee_frames, robot_t=robot_t, robot_p=robot_p, robot_cmd=robot_cmd,
+            contact=contact, gravity=g, com_M=com_M, inertia_M=I_M, strokes=tuple(planner.strokes),
+        )
+    finally:
+        pb.disconnect(physicsClientId=cid)
+        tmp.cleanup()
