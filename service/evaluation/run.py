@@ -130,14 +130,19 @@ def true_geometry_model(gt_mesh: Mesh, X_OG: np.ndarray, like: ObjectModel) -> O
                        com_O=like.com_O, inertia_O=like.inertia_O, friction=like.friction, effects=dict(like.effects))
 
 
-def initial_velocity(t: np.ndarray, X_WO: np.ndarray, k0: int, k1: int | None) -> tuple[np.ndarray, np.ndarray]:
-    """Backward difference between tracked frames k0 and k1 > k0: v of O's origin in W, ω in O axes."""
+def initial_velocity(t: np.ndarray, X_WO: np.ndarray, k0: int, k1: int | None, rest_m: float = 0.0,
+                     rest_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Backward difference between tracked frames k0 and k1 > k0: v of O's origin in W, ω in O axes.
+
+    Zero when the motion between the two frames is below (rest_m, rest_deg), i.e. within tracking noise."""
     if k1 is None:
         return np.zeros(3), np.zeros(3)
     h = t[k1] - t[k0]
-    v = (X_WO[k1, :3, 3] - X_WO[k0, :3, 3]) / h
-    w = so3_log(X_WO[k0, :3, :3].T @ X_WO[k1, :3, :3]) / h
-    return v, w
+    dp = X_WO[k1, :3, 3] - X_WO[k0, :3, 3]
+    r = so3_log(X_WO[k0, :3, :3].T @ X_WO[k1, :3, :3])
+    if np.linalg.norm(dp) < rest_m and np.degrees(np.linalg.norm(r)) < rest_deg:
+        return np.zeros(3), np.zeros(3)
+    return dp / h, r / h
 
 
 def _robot_path(inp: EvaluationInputs, cfg: EvaluationConfig) -> tuple[RobotPath, str]:
@@ -193,7 +198,7 @@ def dynamics_metrics(inp: EvaluationInputs, gt: GroundTruth | None, X_OG0: np.nd
     k0 = int(np.flatnonzero(tracked)[0])
     nxt = np.flatnonzero(tracked[k0 + 1 :])
     k1 = k0 + 1 + int(nxt[0]) if (cfg.initial_velocity == "finite_difference" and len(nxt)) else None
-    v0, w0 = initial_velocity(t, inp.X_WO, k0, k1)
+    v0, w0 = initial_velocity(t, inp.X_WO, k0, k1, cfg.rest_translation_m, cfg.rest_rotation_deg)
     path, mode = _robot_path(inp, cfg)
     sim_cfg = SimConfig(**{**cfg.sim.__dict__, "robot_mode": mode})
     t_out = t[k0:]

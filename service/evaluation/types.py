@@ -29,6 +29,8 @@ class EvaluationConfig:
     sim: SimConfig = field(default_factory=SimConfig)
     robot_mode: str = "auto"  # "auto": impedance toward cmd_* when recorded, else kinematic replay
     initial_velocity: str = "finite_difference"  # or "zero"
+    rest_translation_m: float = 0.002  # first-frame motion below both is tracking noise: start at rest
+    rest_rotation_deg: float = 1.0
     geometry: bool = True
     dynamics: bool = True
 

@@ -131,3 +131,18 @@ def test_ground_truth_reading(scene, tmp_path):
     (tmp_path / "ground_truth" / "contacts.csv").write_text("t_start,t_end\n1.0,0.5\n")
     with pytest.raises(InvalidSession, match="contacts.csv"):
         load_ground_truth(tmp_path)
+
+
+def test_initial_velocity_body_rates_and_rest():
+    from service.evaluation.run import initial_velocity
+
+    t = np.array([0.0, 0.1])
+    R0 = so3_exp(np.array([0.0, 0.0, 1.0]))
+    X = np.stack([make_X(R0, [0, 0, 0]), make_X(R0 @ so3_exp(np.array([0.05, 0.0, 0.0])), [0.01, 0.0, 0.0])])
+    v, w = initial_velocity(t, X, 0, 1, 0.002, 1.0)
+    np.testing.assert_allclose(v, [0.1, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(w, [0.5, 0, 0], atol=1e-9)  # body axes
+    X[1, :3, 3] = [0.0005, 0, 0]
+    X[1, :3, :3] = R0 @ so3_exp(np.array([0.005, 0.0, 0.0]))
+    v, w = initial_velocity(t, X, 0, 1, 0.002, 1.0)
+    assert not v.any() and not w.any()
