@@ -318,6 +318,20 @@ def _copy_folder(source: Path, writer: _Writer, budget: _Budget) -> None:
             writer.write(parts, name, src, None)
 
 
+def check_upload(source: Path, limits: Limits) -> int:
+    """Size checks of an archive file before anything reads it; returns its size."""
+    if not source.is_file():
+        raise InvalidSession(source.name, "upload not found or not a regular file")
+    size = source.stat().st_size
+    if size > limits.max_upload_bytes:
+        raise InvalidSession(
+            source.name, f"archive is {size} bytes, over the {limits.max_upload_bytes}-byte limit (max_upload_bytes)"
+        )
+    if size == 0:
+        raise InvalidSession(source.name, "empty file, expected a zip, tar, tar.gz or tgz archive")
+    return size
+
+
 def unpack(source: Path, dest: Path, limits: Limits) -> None:
     """Unpack ``source`` (archive or folder) into the existing empty folder ``dest``.
 
@@ -327,13 +341,7 @@ def unpack(source: Path, dest: Path, limits: Limits) -> None:
         budget = _Budget(limits, source.name, packed_bytes=1 << 62)  # no compression in a folder
         _copy_folder(source, _Writer(dest, budget), budget)
         return
-    if not source.is_file():
-        raise InvalidSession(source.name, "upload not found or not a regular file")
-    size = source.stat().st_size
-    if size > limits.max_upload_bytes:
-        raise InvalidSession(source.name, f"archive is {size} bytes, over the {limits.max_upload_bytes}-byte limit (max_upload_bytes)")
-    if size == 0:
-        raise InvalidSession(source.name, "empty file, expected a zip, tar, tar.gz or tgz archive")
+    size = check_upload(source, limits)
     kind = detect_kind(source)
     budget = _Budget(limits, source.name, packed_bytes=size)
     writer = _Writer(dest, budget)

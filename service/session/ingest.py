@@ -348,6 +348,8 @@ def ingest(source: Path, dest: Path, *, limits: Limits | None = None, progress: 
         p = p.parent
     dest.mkdir(parents=True, exist_ok=True)
     try:
+        if not source.is_dir():
+            archive.check_upload(source, limits)
         _report(progress, 0.0, "hashing the upload")
         sha = sha256_of(source)
         _report(progress, 0.02, "unpacking")
