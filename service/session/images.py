@@ -149,8 +149,10 @@ def check_mask(info: ImageInfo, rel: str) -> None:
         raise InvalidSession(rel, f"{info.bit_depth}-bit image, expected 8-bit")
 
 
-def decode_check(path: Path, rel: str, info: ImageInfo, kind: str) -> None:
-    """Decode with OpenCV and confirm it agrees with the header (catches broken compressed data)."""
+def decode_check(path: Path, rel: str, info: ImageInfo, kind: str):
+    """Decode with OpenCV and confirm it agrees with the header (catches broken compressed data).
+
+    Returns the decoded image."""
     import cv2
 
     flag = cv2.IMREAD_COLOR if kind == "rgb" else cv2.IMREAD_UNCHANGED
@@ -163,3 +165,12 @@ def decode_check(path: Path, rel: str, info: ImageInfo, kind: str) -> None:
         raise InvalidSession(rel, "decoded depth is not single-channel 16-bit")
     if kind == "mask" and (img.ndim != 2 or img.dtype.itemsize != 1):
         raise InvalidSession(rel, "decoded mask is not single-channel 8-bit")
+    return img
+
+
+def any_nonzero(path: Path) -> bool:
+    """True when the decoded image has a non-zero pixel."""
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    return img is not None and bool(img.any())

@@ -140,6 +140,7 @@ def _check_images(
     total = 3 * n
     done = 0
     sample = sorted(set(np.linspace(0, n - 1, min(n, N_DECODE)).round().astype(int).tolist()))
+    nonzero = {"depth": False, "masks": False}
     for folder in ("rgb", "depth", "masks"):
         for i, p in enumerate(files[folder]):
             rel = f"{folder}/{p.name}"
@@ -148,10 +149,17 @@ def _check_images(
             if (info.width, info.height) != (W, H):
                 raise InvalidSession(rel, f"{info.width}x{info.height} image, expected {W}x{H} like {first_rel}")
             if i in sample:
-                images.decode_check(p, rel, info, kinds[folder])
+                img = images.decode_check(p, rel, info, kinds[folder])
+                if folder in nonzero and img.any():
+                    nonzero[folder] = True
             done += 1
             if done % 64 == 0:
                 _report(progress, 0.1 + 0.5 * done / total, f"checked {done}/{total} images")
+    # the sampled frames were all zero: look at every frame before refusing
+    if not nonzero["depth"] and not any(images.any_nonzero(p) for p in files["depth"]):
+        raise InvalidSession("depth/", "every depth frame is empty (all pixels 0 = no reading)")
+    if not nonzero["masks"] and not any(images.any_nonzero(p) for p in files["masks"]):
+        raise InvalidSession("masks/", "every mask is empty; mark the object's pixels (non-zero) in the frames where it is visible")
     return W, H
 
 

@@ -580,3 +580,23 @@ def test_stray_file_next_to_top_folder(tmp_path):
     with pytest.raises(InvalidSession, match="exactly one top-level folder; found 'README.txt', 's'"):
         ingest(arc, tmp_path / "d")
     assert not (tmp_path / "d").exists()
+
+
+@pytest.mark.parametrize("folder,value,rule", [("masks", np.uint8, "every mask is empty"), ("depth", np.uint16, "every depth frame is empty")])
+def test_all_empty_masks_or_depth(folder, value, rule, tmp_path):
+    src = write_session(tmp_path / "src")
+    for p in (src / folder).iterdir():
+        cv2.imwrite(str(p), np.zeros((24, 32), value))
+    with pytest.raises(InvalidSession) as ei:
+        ingest(src, tmp_path / "d")
+    assert ei.value.file == f"{folder}/" and rule in ei.value.rule
+    assert not (tmp_path / "d").exists()
+
+
+def test_object_visible_in_one_unsampled_frame_is_enough(tmp_path):
+    src = write_session(tmp_path / "src", Spec(n=6))
+    masks = sorted((src / "masks").iterdir())
+    for k, p in enumerate(masks):
+        if k != 1:  # frames 0, 2/3 and 5 are the decoded sample
+            cv2.imwrite(str(p), np.zeros((24, 32), np.uint8))
+    assert ingest(src, tmp_path / "d").n_frames == 6
