@@ -90,10 +90,8 @@ class ResidualConfig:
 
     Held-out evaluation: each trajectory is cut into open-loop rollout blocks of ``segment_s``
     seconds; whole trajectories (>= 4 of them) or blocks are split into training and held-out folds.
-    An effect is accepted when, on held-out segments, (a) the mean error falls by at least
-    ``min_rel_improvement`` (relative) and (b) the one-sided ``1 - alpha`` bootstrap lower bound of
-    the mean paired improvement is > 0 and (c) at least ``min_win_fraction`` of held-out segments
-    improve.
+    Acceptance rule: see ``service.residuals.loop`` (relative fall, bootstrap bound, sign test,
+    parameter resolution).
     """
 
     seed: int = 0
@@ -102,12 +100,12 @@ class ResidualConfig:
     min_segment_frames: int = 5
     heldout_fraction: float = 0.5
     max_train_segments: int = 24  # subsample training segments (speed); held-out keeps all
-    max_heldout_segments: int = 64
+    max_heldout_segments: int = 200
     rot_scale_m: float | None = None  # metres per radian in the scalar error; None = object radius
     min_rel_improvement: float = 0.05
     alpha: float = 0.05
     n_bootstrap: int = 2000
-    min_win_fraction: float = 0.5
+    tie_tol_rel: float = 0.02  # sign test: |d| below this fraction of the median error is a tie
     max_effects: int = 3  # greedy forward selection stops after this many accepted effects
     fit_maxiter: int = 40  # function evaluations budget per effect fit (rollouts over training set)
     init_fit_frames: int = 9  # start state from a quadratic fit over this many frames centred on the start
@@ -119,7 +117,7 @@ class ResidualConfig:
 
     @classmethod
     def fast(cls) -> "ResidualConfig":
-        return cls(fit_maxiter=16, n_bootstrap=500, max_train_segments=6, max_heldout_segments=8, max_effects=2)
+        return cls(fit_maxiter=16, n_bootstrap=500, max_train_segments=6, max_heldout_segments=16, max_effects=2)
 
 
 @dataclass(frozen=True)
