@@ -181,19 +181,20 @@ def _robot_positions(meta: SessionMeta, log: robot.RobotLog) -> np.ndarray:
     if meta.robot.joints is None:
         assert log.ee is not None
         return log.ee
-    from service.session import kinematics
+    from service.session.kinematics import PandaModel
 
     assert log.q is not None
-    lo, hi = kinematics.panda_joint_limits()
-    bad = (log.q < lo - JOINT_RANGE_MARGIN) | (log.q > hi + JOINT_RANGE_MARGIN)
-    if bad.any():
-        k, j = (int(x) for x in np.argwhere(bad)[0])
-        raise InvalidSession(
-            robot.REL,
-            f"row {int(log.lines[k])}: q{j + 1} = {log.q[k, j]:g} rad is outside the Panda joint range "
-            f"[{lo[j]:g}, {hi[j]:g}] (radians expected, not degrees)",
-        )
-    return kinematics.panda_sphere_centres(log.q, tip_offset(meta))
+    with PandaModel() as panda:
+        lo, hi = panda.lower, panda.upper
+        bad = (log.q < lo - JOINT_RANGE_MARGIN) | (log.q > hi + JOINT_RANGE_MARGIN)
+        if bad.any():
+            k, j = (int(x) for x in np.argwhere(bad)[0])
+            raise InvalidSession(
+                robot.REL,
+                f"row {int(log.lines[k])}: q{j + 1} = {log.q[k, j]:g} rad is outside the Panda joint range "
+                f"[{lo[j]:g}, {hi[j]:g}] (radians expected, not degrees)",
+            )
+        return panda.sphere_centres(log.q, tip_offset(meta))
 
 
 def _detect_table(
