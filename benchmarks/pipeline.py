@@ -4,6 +4,7 @@
 
     /work/venv/bin/python benchmarks/pipeline.py                      # generate + whole flow
     /work/venv/bin/python benchmarks/pipeline.py --session DIR        # an existing session folder
+    /work/venv/bin/python benchmarks/pipeline.py --preset fast        # the reduced pipeline preset
     /work/venv/bin/python benchmarks/pipeline.py --stage evaluation   # the evaluation stage alone, with the
                                                                       # true model for every method
 
@@ -78,25 +79,18 @@ def make_full_session(work: Path, seed: int) -> Path:
     return d
 
 
-def call_flow(session: Path, out: Path) -> dict:
-    """Call ``flows.process_session`` with the session folder and an output folder, whatever it names them."""
+def call_flow(session: Path, out: Path, data_dir: Path, preset: str | None) -> dict:
+    """Run ``flows.process_session`` on the session folder and return the bundle's report.json."""
     from flows import process_session  # noqa: PLC0415 (the flow is an optional part for this script)
 
     fn = getattr(process_session, "fn", process_session)  # a Prefect flow object wraps the function
-    params = list(inspect.signature(fn).parameters)
-    kwargs = {}
-    for name in ("out", "out_dir", "output", "output_dir", "bundle_dir"):
-        if name in params:
-            kwargs[name] = out
-            break
-    res = process_session(session, **kwargs)
-    if isinstance(res, dict):
-        return res
-    for cand in ([Path(res)] if isinstance(res, (str, Path)) else []) + [out]:
-        p = cand / "report.json" if cand.is_dir() else cand
-        if p.is_file() and p.suffix == ".json":
-            return json.loads(p.read_text())
-    return {"result": repr(res)}
+    params = set(inspect.signature(fn).parameters)
+    kwargs = {k: v for k, v in (("data_dir", str(data_dir)), ("preset", preset), ("out_dir", str(out))) if k in params}
+    res = process_session(str(session), **kwargs)
+    for cand in ([Path(res["bundle_dir"])] if isinstance(res, dict) and res.get("bundle_dir") else []) + [out]:
+        if (cand / "report.json").is_file():
+            return json.loads((cand / "report.json").read_text())
+    return res if isinstance(res, dict) else {"result": repr(res)}
 
 
 def stage_evaluation(session: Path, work: Path) -> dict:
@@ -135,6 +129,7 @@ def main(argv=None) -> int:
     ap.add_argument("--work", type=Path, default=Path("/tmp/vysics-bench-pipeline"))
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--stage", choices=["all", "evaluation"], default="all")
+    ap.add_argument("--preset", default=None, help="pipeline preset: default | fast (default: VYSICS_PRESET)")
     a = ap.parse_args(argv)
     cmd = "/work/venv/bin/python benchmarks/pipeline.py " + " ".join(shlex.quote(x) for x in (argv or sys.argv[1:]))
     a.work.mkdir(parents=True, exist_ok=True)
@@ -147,7 +142,7 @@ def main(argv=None) -> int:
             rep = stage_evaluation(session, a.work)
         else:
             try:
-                rep = call_flow(session, out)
+                rep = call_flow(session, out, a.work / "data", a.preset)
             except ImportError as e:
                 print(f"flows.process_session is not available ({e}); nothing measured")
                 return 2
