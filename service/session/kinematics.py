@@ -27,7 +27,9 @@ class PandaModel:
         self._cid = pb.connect(pb.DIRECT)
         try:
             urdf = f"{pybullet_data.getDataPath()}/franka_panda/panda.urdf"
-            self._robot = pb.loadURDF(urdf, useFixedBase=True, physicsClientId=self._cid)
+            # kinematics only: skip the meshes (loading them costs ~1 s, the frames do not depend on them)
+            flags = pb.URDF_IGNORE_VISUAL_SHAPES | pb.URDF_IGNORE_COLLISION_SHAPES
+            self._robot = pb.loadURDF(urdf, useFixedBase=True, flags=flags, physicsClientId=self._cid)
             joints: dict[str, tuple[int, float, float]] = {}
             self._flange = -1
             for j in range(pb.getNumJoints(self._robot, physicsClientId=self._cid)):
