@@ -141,3 +141,17 @@ def test_linear_damping_is_a_viscous_rate():
     r = rollout(m, at(0.05), np.array([0.4, 0, 0]), np.zeros(3), (T, FAR), 0.0, 0.02, CFG)
     k = 30
     assert r.v_WO_W[k, 0] == pytest.approx(0.4 * np.exp(-2.0 * T[k]), rel=0.05)
+
+
+def test_impedance_mode_settles_critically_damped_on_a_step_command():
+    cfg = SimConfig(dt=1 / 480, robot_mode="impedance")
+    cmd = np.tile([0.5, 0.5, 0.3], (len(T), 1))
+    cmd[T >= 0.5, 0] += 0.05
+    r = rollout(box_model(), at(0.05), np.zeros(3), np.zeros(3), RobotPath(T, cmd, commanded=True), 0.0, 0.02, cfg)
+    assert np.abs(r.p_WE[T < 0.5] - [0.5, 0.5, 0.3]).max() < 1e-3  # gravity compensated, holds still
+    late = T > 1.0
+    assert np.abs(r.p_WE[late, 0] - 0.55).max() < 1e-3
+    assert r.p_WE[:, 0].max() < 0.55 + 1e-3  # no overshoot
+    # lag: halfway after about 1.68 / omega with omega = sqrt(K / m) = 38.7 rad/s
+    k = np.argmax(r.p_WE[:, 0] > 0.525)
+    assert 0.02 < T[k] - 0.5 < 0.1
