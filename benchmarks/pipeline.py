@@ -81,7 +81,10 @@ def make_full_session(work: Path, seed: int) -> Path:
 
 def call_flow(session: Path, out: Path, data_dir: Path, preset: str | None) -> dict:
     """Run ``flows.process_session`` on the session folder and return the bundle's report.json."""
-    from flows import process_session  # noqa: PLC0415 (the flow is an optional part for this script)
+    try:
+        from flows import process_session  # noqa: PLC0415 (the flow is an optional part for this script)
+    except ImportError:
+        from flows.pipeline import process_session  # noqa: PLC0415
 
     fn = getattr(process_session, "fn", process_session)  # a Prefect flow object wraps the function
     params = set(inspect.signature(fn).parameters)
