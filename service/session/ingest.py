@@ -296,7 +296,7 @@ def build_session(
     aroot = root.resolve()
     return Session(
         name=meta.name or name or root.name,
-        root=root,
+        root=aroot,
         sha256=sha256,
         frame_times=frame_times,
         K=K,
