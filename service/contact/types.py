@@ -64,10 +64,40 @@ class ContactOutputs:
 
 @dataclass(frozen=True)
 class ContactConfig:
-    """Settings of contact-implicit dynamics learning. ``fast()`` is the reduced preset used by tests."""
+    """Settings of contact-implicit dynamics learning. ``fast()`` is the reduced preset used by tests.
+
+    Defaults follow PLL / Vysics (method-notes §2.4, §3, §5) except ``width`` (256 in PLL; 64 is enough for
+    the convex shapes here and 4-5x faster on CPU) and ``epochs`` (300 in PLL)."""
 
     seed: int = 0
+    # loss weights (PLL defaults)
+    w_pred: float = 4.0
+    w_comp: float = 1.0
+    w_diss: float = 5000.0
+    w_pen: float = 0.5
+    w_vision: float = 0.04
+    # geometry
+    width: int = 64  # hidden width W of the deep support function (PLL: 256)
+    n_plane: int = 5  # table witness candidates per transition
+    export_grid: int = 8  # k of the k×k×k cube-surface direction grid for the mesh (8 -> 296 directions)
+    init_radius: float = 0.08  # m, radius of the initial ball when no initial geometry is given
+    pretrain_steps: int = 300  # pre-fit of the support function to the initial geometry (0 = random init)
+    # inertia / friction
+    default_mass: float = 0.37  # kg, used when the mass is not declared
+    learn_com: bool = True
+    learn_friction: bool = False
+    learn_mass: bool = False
+    # optimisation
+    epochs: int = 300
+    batch_size: int = 200
+    lr: float = 2e-3
+    solver_max_iters: int = 100
+    solver_eps_rel: float = 1e-4
+    warm_start: bool = True
+    # physible set
+    physible_fraction: float = 0.3
+    max_physible_points: int = 20000
 
     @classmethod
     def fast(cls) -> "ContactConfig":
-        return cls()
+        return cls(width=32, epochs=30, pretrain_steps=100, solver_max_iters=100, export_grid=6)
