@@ -212,7 +212,7 @@ def _detect_table(
         m = cv2.imread(str(mask_files[i]), cv2.IMREAD_UNCHANGED)
         depths.append(d.astype(np.float32) * np.float32(depth_scale))
         masks.append(m > 0)
-    plane = detect_table_plane(depths, masks, K, X_WC, TablePlaneConfig(n_frames=len(idx)))
+    plane = detect_table_plane(depths, masks, K, X_WC, TablePlaneConfig())
     if plane is None:
         raise InvalidSession(
             "depth/",

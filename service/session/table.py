@@ -21,7 +21,6 @@ import numpy as np
 
 @dataclass(frozen=True)
 class TablePlaneConfig:
-    n_frames: int = 5
     max_points: int = 40_000  # background points kept for the fit (over all frames)
     ransac_points: int = 4_000  # points on which RANSAC hypotheses are scored
     iterations: int = 300
