@@ -4,9 +4,13 @@ Points: for a few frames, every valid depth pixel outside the dilated object mas
 p_C = d K^-1 [u, v, 1]^T, and mapped to the world, p_W = X_WC p_C. The object's own points give an upper
 bound for the table: z_max = (2nd percentile of the object's z) + 2 cm.
 
-RANSAC (hypotheses scored on a random subset of the points): planes n.p = c through 3 random points are kept only when near-horizontal
-(angle(n, z_W) <= ``max_tilt_deg``) and below z_max; the plane with the most inliers
-(|n.p - c| <= ``inlier_m``) wins. It is refined by total least squares (SVD of the centred inliers),
+RANSAC (hypotheses scored on a random subset of the points): planes n.p = c through 3 random points are kept
+only when near-horizontal (angle(n, z_W) <= ``max_tilt_deg``); points above z_max were removed beforehand.
+Each hypothesis is scored by its inliers (|n.p - c| <= ``inlier_m``) and its height under the object.
+Hypotheses within ``surface_gap_m`` in height form one surface (its best hypothesis stands for it); of the
+surfaces with at least ``min_support_ratio`` of the best surface's support, the highest wins: the object
+rests on the table, so a floor or a lower bench seen past the table edge is not taken for it, however
+large. It is refined by total least squares (SVD of the centred inliers),
 twice, with the inlier band shrunk to 3 robust sigmas (MAD), not below ``min_band_m``.
 The table height is the refined plane's z at the object's centroid (x, y) (or at the inliers' centroid
 when there are no object points). No plane with at least ``min_inliers`` points -> error.
@@ -29,6 +33,8 @@ class TablePlaneConfig:
     max_tilt_deg: float = 10.0
     min_inliers: int = 200
     min_inlier_fraction: float = 0.05
+    surface_gap_m: float = 0.03  # hypotheses closer than this in height are the same surface
+    min_support_ratio: float = 0.1  # a surface needs this fraction of the best surface's inliers
     mask_dilate_px: int = 3
     seed: int = 0
 
@@ -94,7 +100,8 @@ def detect_table_plane(
     if n_pts < max(3, cfg.min_inliers):
         return None
     cos_tilt = np.cos(np.deg2rad(cfg.max_tilt_deg))
-    best_count, best = 0, None
+    xy0 = O[:, :2].mean(axis=0) if len(O) else P[:, :2].mean(axis=0)
+    hyps: list[tuple[int, float, np.ndarray, float]] = []
     S = P[rng.choice(n_pts, cfg.ransac_points, replace=False)] if n_pts > cfg.ransac_points else P
     idx = rng.integers(0, len(S), size=(cfg.iterations, 3))
     for i0, i1, i2 in idx:
@@ -110,11 +117,20 @@ def detect_table_plane(
             continue
         off = float(n @ a)
         count = int((np.abs(S @ n - off) <= cfg.inlier_m).sum())
-        if count > best_count:
-            best_count, best = count, (n, off)
-    if best is None:
+        hyps.append((count, (off - n[0] * xy0[0] - n[1] * xy0[1]) / n[2], n, off))
+    if not hyps:
         return None
-    n, off = best
+    # group hypotheses into surfaces by height; the highest well-supported surface below the object wins
+    hyps.sort(key=lambda h: -h[0])
+    surfaces: list[tuple[int, float, np.ndarray, float]] = []
+    for h in hyps:
+        if all(abs(h[1] - g[1]) >= cfg.surface_gap_m for g in surfaces):
+            surfaces.append(h)
+    support = max(cfg.min_support_ratio * hyps[0][0], need * len(S) / n_pts, 3)
+    eligible = [g for g in surfaces if g[0] >= support]
+    if not eligible:
+        return None
+    _, _, n, off = max(eligible, key=lambda g: g[1])
     band = cfg.inlier_m
     inl = np.abs(P @ n - off) <= band
     for _ in range(2):

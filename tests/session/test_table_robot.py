@@ -104,3 +104,22 @@ def test_frames_just_outside_robot_span_hold_end_values(tmp_path):
     s = ingest(write_session(tmp_path / "src", Spec(n=4, fps=10.0, robot_rows=rows)), tmp_path / "d")
     assert s.p_WE[0, 0] == pytest.approx(0.3)
     assert s.p_WE[1, 0] == pytest.approx(0.3 + 0.3 * (0.08 / 0.28))
+
+
+def test_table_preferred_over_larger_floor_below():
+    """The camera sees more floor (z = -0.75) than table (z = 0): the table under the object wins."""
+    X_WC = look_at(np.array([-0.2, 0.0, 0.9]), np.array([0.6, 0.0, -0.4]))
+    K2 = np.array([[50.0, 0, 31.5], [0, 50.0, 23.5], [0, 0, 1]])
+    lo, hi = [0.45, -0.05, 0.0], [0.55, 0.05, 0.08]
+    d_table, m = render(X_WC, K2, 0.0, lo, hi, w=64, h=48)
+    d_floor, _ = render(X_WC, K2, -0.75, [9, 9, 9], [9.1, 9.1, 9.1], w=64, h=48)
+    # the table is the rectangle x in [0.2, 0.8], |y| < 0.35; elsewhere the ray reaches the floor
+    u, v = np.meshgrid(np.arange(64), np.arange(48))
+    r = np.stack([(u - 31.5) / 50.0, (v - 23.5) / 50.0, np.ones_like(u, float)], -1) @ X_WC[:3, :3].T
+    p = X_WC[:3, 3] + d_table[..., None] * r
+    on_table = (p[..., 0] > 0.2) & (p[..., 0] < 0.8) & (np.abs(p[..., 1]) < 0.35)
+    d = np.where(m | on_table, d_table, d_floor).astype(np.float32)
+    n_floor, n_table = (~on_table & ~m).sum(), on_table.sum()
+    assert n_floor > 2 * n_table > 0.4 * n_floor  # more floor than table in view
+    plane = detect_table_plane([d], [m], K2, X_WC)
+    assert plane is not None and abs(plane.height) < 0.005
