@@ -125,7 +125,8 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
     rec = simulate(
         obj, interaction=spec.interaction, table_h=table_h, start_xy=start_xy, start_yaw=start_yaw, lateral=lateral,
         n_frames=N, fps=fps, physics_hz=spec.physics_hz, mu_ot=spec.friction_object_table, mu_or=spec.friction_object_robot,
-        effects=spec.effects, rng=rng_plan, log_margin=0.2 + abs(spec.effects.clock_offset), progress=lambda f, m: report(0.25 * f, m),
+        effects=spec.effects, rng=rng_plan, log_margin=0.2 + abs(spec.effects.clock_offset),
+        rolling_friction=spec.rolling_friction, progress=lambda f, m: report(0.25 * f, m),
     )
 
     # ----------------------------------------------------------------------------- rendering
@@ -212,6 +213,7 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
             "inertia_mesh": rec.inertia_M.tolist(),
             "friction_object_table": mu_true,
             "friction_object_robot": spec.friction_object_robot,
+            "rolling_friction": spec.rolling_friction,
             "restitution": eff.restitution,
             "linear_damping": eff.linear_damping,
             "angular_damping": eff.angular_damping,
@@ -220,7 +222,7 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
             "clock_offset": eff.clock_offset,
         },
         "declared": {"mass": session["object"]["mass"], "table_height": session["table"]["height"], "friction": session["friction"]},
-        "object": {"kind": obj.kind, "description": KINDS[obj.kind].description, "convex": obj.convex, "extents": obj.extents.tolist(), "volume": float(obj.mesh.volume)},
+        "object": {"kind": obj.kind, "scale": spec.scale, "description": KINDS[obj.kind].description, "convex": obj.convex, "extents": obj.extents.tolist(), "volume": float(obj.mesh.volume)},
         "robot_controller": {"law": "F = K (x_cmd - x) - D v + gravity compensation", "stiffness": EE_STIFFNESS, "damping": EE_DAMPING, "mass": EE_MASS, "physics_hz": spec.physics_hz},
         "strokes": list(rec.strokes),
         "occlusion": {

@@ -293,10 +293,10 @@ def calibrate_occluder(
     rad = 0.5 * float(np.hypot(ext[0], ext[1]))
     top = float(np.max(ext))
     delta = rad + float(rng.uniform(0.06, 0.14))
-    if kind == "post":
-        he = (0.5 * (2.6 * rad + 0.04), 0.015, 0.5 * (top + 0.25))
+    if kind == "post":  # wide enough to hide the whole object when centred on it
+        he = (1.2 * rad + 0.01, 0.015, 0.5 * (top + 0.06))
     else:
-        he = (0.25, 0.015, 0.5 * (2.0 * top + 0.1))
+        he = (0.10, 0.015, 0.5 * (2.0 * top + 0.1))
     n = len(t)
     step = max(1, int(round(key_dt / (t[1] - t[0])))) if n > 1 else 1
     keys = list(range(0, n, step))

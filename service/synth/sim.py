@@ -8,7 +8,10 @@ Model
   (exactly the exported mesh for convex objects). Mass m, inertia of the uniform-density solid about its
   centroid, CoM = centroid + hidden ``com_offset``. Bullet combines friction and restitution of a pair
   by product, so object = (mu 1, e), table = (mu_OT, 1), sphere = (mu_OR, 1) give the pair values
-  mu_OT, mu_OR and restitution e.
+  mu_OT, mu_OR and restitution e. Bullet pads hull shapes by a 1 mm collision margin; the table's
+  collision box is lowered and the sphere's collision radius shrunk by it, so the true surfaces touch.
+  A small rolling resistance rho (m, torque rho N against rolling, default 0.5 mm as for plastic on a
+  rubber mat) keeps round objects from rolling forever; it is in the sidecar's true values.
 - End effector: a dynamic sphere (radius 0.0195 m, mass m_E) that does not collide with the table, its
   spin reset every step (rigidly held), driven by a Cartesian impedance law with gravity compensation:
       F = K (x_cmd - x) - D v + m_E (-g),   K = 1500 N/m, D = 2 sqrt(K m_E)  (critically damped).
@@ -39,6 +42,8 @@ EE_DAMPING = 2.0 * np.sqrt(EE_STIFFNESS * EE_MASS)
 GRAVITY = 9.81
 TABLE_CENTRE_XY = (0.5, 0.0)
 TABLE_HALF = (0.8, 0.8, 0.02)
+FAR_FROM_HOME = 0.2  # m; no more strokes once the object is this far from where it started
+HULL_MARGIN = 0.001  # Bullet's collision margin around convex-hull shapes (measured: rest height 0.99 mm)
 
 
 def xyzw(q_wxyz: np.ndarray) -> list[float]:
@@ -101,7 +106,8 @@ class _Path:
 class _Planner:
     """Plans strokes (push / pivot / topple) from the object's current pose, like a tele-operator."""
 
-    def __init__(self, interaction: str, obj: SynthObject, table_h: float, rng: np.random.Generator, lateral: np.ndarray, duration: float, home_xy: np.ndarray):
+    def __init__(self, interaction: str, obj: SynthObject, table_h: float, rng: np.random.Generator, lateral: np.ndarray, duration: float, home_xy: np.ndarray, mu_table: float):
+        self.mu_table = mu_table
         self.interaction = interaction
         self.obj = obj
         self.hull = np.asarray(obj.mesh.convex_hull.vertices, float)
@@ -131,16 +137,35 @@ class _Planner:
         d = np.array([ca * base[0] - sa * base[1], sa * base[0] + ca * base[1]])
         return d / np.linalg.norm(d)
 
+    def _thin_heading(self, V: np.ndarray, c: np.ndarray, d_nominal: np.ndarray) -> np.ndarray:
+        """Heading across the object's thinnest horizontal width (easiest to tip), signed like d_nominal."""
+        rel = V[:, :2] - c[:2]
+        th = np.linspace(0.0, np.pi, 72, endpoint=False)
+        D = np.stack([np.cos(th), np.sin(th)], 1)
+        proj = rel @ D.T
+        width = proj.max(0) - proj.min(0)
+        d = D[int(np.argmin(width))]
+        if d @ d_nominal < 0:
+            d = -d
+        a = self.rng.uniform(-0.15, 0.15)
+        return np.array([np.cos(a) * d[0] - np.sin(a) * d[1], np.sin(a) * d[0] + np.cos(a) * d[1]])
+
     def plan(self, path: _Path, X_WM: np.ndarray, first: bool, initial_hold: float = 0.0) -> None:
         """Append one stroke (with its approach) to ``path``, starting at path.t_end."""
         kind = self.interaction if (first or self.interaction == "pivot") else "push"
         if kind == "topple" and any(s["kind"] == "topple" for s in self.strokes):
             kind = "push"
+        if not first and np.linalg.norm(X_WM[:2, 3] - self.home_xy) > FAR_FROM_HOME:
+            # the object got away (rolled): the operator stops and the robot stays where it is
+            path.hold(self.duration - path.t_end + 1.0)
+            return
         V = self.hull @ X_WM[:3, :3].T + X_WM[:3, 3]
         top = float(V[:, 2].max())
         H = top - self.table_h
         c = X_WM[:3, 3]
         d2 = self._heading(X_WM)
+        if kind in ("pivot", "topple"):
+            d2 = self._thin_heading(V, X_WM[:3, 3], d2)
         d = np.array([d2[0], d2[1], 0.0])
         rel = V[:, :2] - c[:2]
         s_back = float((rel @ -d2).max())
@@ -153,6 +178,11 @@ class _Planner:
         else:
             hc = max(0.85 * H, r + 0.003)
         hc = min(hc, max(H - 0.5 * r, r + 0.003))
+        if kind != "push" and self.mu_table * hc < 0.9 * s_front:
+            # a squat object slides before it tips (the push needs F > m g s_front / h_c while the table
+            # holds at most mu m g): it is pushed low instead, the stroke is recorded as a push
+            kind = "push"
+            hc = np.clip(0.3 * H, r + 0.003, max(H - 0.6 * r, r + 0.003))
         z = self.table_h + hc
         gap = 0.02
         start = np.array([c[0], c[1], z]) - d * (s_back + r + gap)
@@ -162,20 +192,20 @@ class _Planner:
         h_com = c[2] - self.table_h
         if kind == "push":
             travel = float(self.rng.uniform(0.04, 0.06) if self.tiny else self.rng.uniform(0.05, 0.10))
-            speed = 0.08
+            speed = 0.08 if self.tiny else 0.10
         elif kind == "pivot":
             th_tip = np.arctan2(s_front, max(h_com, 1e-3))
             a = 0.55 * th_tip
             w = s_front + s_back
             travel = w * (1 - np.cos(a)) + hc * np.sin(a)
-            speed = 0.05
+            speed = 0.10 if self.tiny else 0.07
         else:
             th_tip = np.arctan2(s_front, max(h_com, 1e-3))
             a = min(th_tip + 0.45, 1.2)
             w = s_front + s_back
             travel = w * (1 - np.cos(a)) + hc * np.sin(a)
-            speed = 0.09
-        z_safe = top + r + 0.04
+            speed = 0.15 if self.tiny else 0.09
+        z_safe = top + r + 0.025
         if path.p_end is None:  # the session starts with the sphere resting at the stroke start
             path.p_end = start
             path.hold(initial_hold)
@@ -184,14 +214,14 @@ class _Planner:
             p = path.p_end
             lift = np.array([p[0], p[1], max(p[2], z_safe)])
             above = np.array([start[0], start[1], max(p[2], z_safe)])
-            path.move(lift, 0.15 + abs(lift[2] - p[2]) / 0.25)
-            path.move(above, 0.2 + np.linalg.norm(above - lift) / 0.3)
-            path.move(start, 0.2 + abs(above[2] - start[2]) / 0.25)
+            path.move(lift, 0.1 + 1.5 * abs(lift[2] - p[2]) / 0.45)
+            path.move(above, 0.1 + 1.5 * np.linalg.norm(above - lift) / 0.4)
+            path.move(start, 0.1 + 1.5 * abs(above[2] - start[2]) / 0.45)
         t_contact = path.t_end
         end = start + d * (approach + travel)
         path.move(end, (approach + travel) / speed * 1.5)  # smooth-step: peak speed 1.5x mean
         if kind == "pivot":
-            path.hold(0.25)
+            path.hold(0.1 if self.tiny else 0.25)
             path.move(start + d * approach * 0.5, (travel + 0.5 * approach) / speed * 1.5)
             back = path.p_end + np.array([0, 0, 0]) - d * 0.02
             path.move(back, 0.3)
@@ -253,6 +283,7 @@ def simulate(
     effects: HiddenEffects,
     rng: np.random.Generator,
     log_margin: float = 0.2,
+    rolling_friction: float = 0.0,
     progress=None,
 ) -> PhysicsRecord:
     steps_per_frame = int(round(physics_hz / fps))
@@ -274,9 +305,12 @@ def simulate(
 
         # table
         tcol = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=TABLE_HALF, physicsClientId=cid)
-        table = pb.createMultiBody(0.0, tcol, -1, [TABLE_CENTRE_XY[0], TABLE_CENTRE_XY[1], table_h - TABLE_HALF[2]], physicsClientId=cid)
+        # hull shapes carry a 1 mm margin: lower the table and shrink the sphere by it so that the true
+        # surfaces touch (the object rests on z = table_h, the sphere touches the exported mesh)
+        table = pb.createMultiBody(0.0, tcol, -1, [TABLE_CENTRE_XY[0], TABLE_CENTRE_XY[1], table_h - HULL_MARGIN - TABLE_HALF[2]], physicsClientId=cid)
         mu_true = effects.friction_object_table if effects.friction_object_table is not None else mu_ot
-        pb.changeDynamics(table, -1, lateralFriction=mu_true, restitution=1.0, rollingFriction=0.0, spinningFriction=0.0, physicsClientId=cid)
+        # Bullet's pair rolling friction is rho_a mu_b + rho_b mu_a: table (rho, mu_OT), object (0, 1) -> rho
+        pb.changeDynamics(table, -1, lateralFriction=mu_true, restitution=1.0, rollingFriction=rolling_friction, spinningFriction=0.0, physicsClientId=cid)
 
         # object: compound of convex parts; inertial frame = principal axes at the CoM
         if len(obj.parts) == 1:
@@ -296,7 +330,7 @@ def simulate(
         X_MI = make_X(evecs, com_M)  # inertial frame in the mesh frame
         R0 = so3_exp(np.array([0.0, 0.0, start_yaw]))
         V0 = np.asarray(obj.mesh.vertices) @ R0.T
-        z0 = table_h - V0[:, 2].min() + 0.0005
+        z0 = table_h - V0[:, 2].min() + 0.0002
         X_WM0 = make_X(R0, np.array([start_xy[0], start_xy[1], z0]))
         body = pb.createMultiBody(
             obj.mass,
@@ -317,7 +351,7 @@ def simulate(
         )
 
         # end-effector sphere
-        scol = pb.createCollisionShape(pb.GEOM_SPHERE, radius=EE_RADIUS, physicsClientId=cid)
+        scol = pb.createCollisionShape(pb.GEOM_SPHERE, radius=EE_RADIUS - HULL_MARGIN, physicsClientId=cid)
         sphere = pb.createMultiBody(EE_MASS, scol, -1, [start_xy[0], start_xy[1], table_h + 0.6], physicsClientId=cid)
         pb.changeDynamics(sphere, -1, lateralFriction=mu_or, restitution=1.0, rollingFriction=0.0, spinningFriction=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
         pb.setCollisionFilterPair(sphere, table, -1, -1, 0, physicsClientId=cid)
@@ -333,13 +367,19 @@ def simulate(
             pb.applyExternalForce(sphere, -1, F.tolist(), list(x), pb.WORLD_FRAME, physicsClientId=cid)
             pb.resetBaseVelocity(sphere, angularVelocity=[0.0, 0.0, 0.0], physicsClientId=cid)
 
-        # settle the object with the robot parked above
+        # settle the object with the robot parked above (strongly damped first, so rockers come to rest)
         park = np.array([start_xy[0], start_xy[1], table_h + 0.6])
-        for _ in range(int(0.4 * physics_hz)):
+        pb.changeDynamics(body, -1, linearDamping=0.9, angularDamping=0.9, physicsClientId=cid)
+        for _ in range(int(0.8 * physics_hz)):
+            step_robot(park)
+            pb.stepSimulation(physicsClientId=cid)
+        pb.changeDynamics(body, -1, linearDamping=lin_d, angularDamping=ang_d, physicsClientId=cid)
+        pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=cid)
+        for _ in range(int(0.2 * physics_hz)):
             step_robot(park)
             pb.stepSimulation(physicsClientId=cid)
 
-        planner = _Planner(interaction, obj, table_h, rng, np.asarray(lateral, float), duration, np.asarray(start_xy, float))
+        planner = _Planner(interaction, obj, table_h, rng, np.asarray(lateral, float), duration, np.asarray(start_xy, float), mu_true)
         path = _Path(None)
         planner.plan(path, X_WM_now(), first=True, initial_hold=0.2 if duration < 3 else float(rng.uniform(0.3, 0.8)))
         start = path(0.0)

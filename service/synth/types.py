@@ -94,9 +94,10 @@ class SynthSpec:
     mass: float | None = None  # kg (default: the catalogue's)
     scale: float = 1.0  # object size factor
     camera_distance: float | None = None  # m (default: random in [0.6, 0.9])
-    rgb_format: str = "png"  # png | jpg
+    rgb_format: str = "jpg"  # jpg (quality 92, like the real sessions) | png
     friction_object_table: float = 0.26  # declared prior (and true value unless effects override it)
     friction_object_robot: float = 0.15
+    rolling_friction: float = 0.0005  # m, rolling resistance object-table (base physics, not declared)
     physics_hz: float = 240.0
 
     def session_name(self) -> str:

@@ -4,7 +4,7 @@ import hashlib
 
 from service.synth import SynthSpec, make_session
 
-FILES = ["session.json", "robot.csv", "rgb/000010.png", "depth/000011.png", "masks/000012.png", "ground_truth/poses.csv"]
+FILES = ["session.json", "robot.csv", "rgb/000010.jpg", "depth/000011.png", "masks/000012.png", "ground_truth/poses.csv"]
 
 
 def _digest(root):
@@ -22,4 +22,4 @@ def test_other_seed_differs(clean_tiny, tmp_path):
     spec, res = clean_tiny
     other = make_session(SynthSpec(**{**spec.__dict__, "seed": spec.seed + 1, "n_frames": 13}), tmp_path / "other")
     a, b = _digest(res.session_dir), _digest(other.session_dir)
-    assert a["session.json"] != b["session.json"] and a["rgb/000010.png"] != b["rgb/000010.png"]
+    assert a["session.json"] != b["session.json"] and a["rgb/000010.jpg"] != b["rgb/000010.jpg"]
