@@ -207,6 +207,7 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
         "session": name,
         "spec": _jsonable(spec.to_dict()),
         "effects": _jsonable(eff.active()),
+        "sim_effects": _sim_effects(spec),
         "true": {
             "mass": obj.mass,
             "com_mesh": rec.com_M.tolist(),
@@ -244,6 +245,29 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
         occlusion_per_frame=hidden, occlusion_in_band=in_band, contacts=tuple(contacts), object_travel=travel,
         object_rotation=rot, elapsed=time.perf_counter() - t_wall,
     )
+
+
+def _sim_effects(spec: SynthSpec) -> dict[str, float]:
+    """The departures from the plain rigid-body model, named as in service.sim.effects (name -> value)."""
+    e = spec.effects
+    out: dict[str, float] = {}
+    if e.restitution:
+        out["restitution"] = float(e.restitution)
+    if e.linear_damping:
+        out["linear_damping"] = float(e.linear_damping)
+    if e.angular_damping:
+        out["angular_damping"] = float(e.angular_damping)
+    if e.table_tilt[0]:
+        out["table_tilt_x"] = float(e.table_tilt[0])
+    if e.table_tilt[1]:
+        out["table_tilt_y"] = float(e.table_tilt[1])
+    if e.clock_offset:
+        out["clock_offset"] = float(e.clock_offset)
+    if e.friction_object_table is not None:
+        out["friction_object_table"] = float(e.friction_object_table)
+    if spec.rolling_friction:
+        out["rolling_friction"] = float(spec.rolling_friction)
+    return out
 
 
 def _jsonable(x):

@@ -24,6 +24,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import os
+import tempfile
+
 import cv2
 import numpy as np
 import pybullet as pb
@@ -43,8 +46,28 @@ TABLE_RGB = (0.50, 0.56, 0.50)
 BACKGROUND_RGB = (235, 235, 235)
 
 
-def _visual_mesh(mesh, smooth_deg: float = 35.0) -> tuple[list, list, list]:
-    """Unshared vertices with auto-smoothed normals (flat across sharp edges)."""
+def object_texture(rgba, rng: np.random.Generator, size: int = 256) -> np.ndarray:
+    """Printed-carton-like texture (size,size,3) uint8 RGB: base colour, soft shading, labels, stripes, speckle."""
+    base = np.asarray(rgba[:3], float) * 255.0
+    img = np.empty((size, size, 3), np.float32)
+    img[:] = base
+    blot = cv2.resize(rng.standard_normal((6, 6)).astype(np.float32), (size, size), interpolation=cv2.INTER_CUBIC)
+    img *= (1.0 + 0.06 * blot)[..., None]
+    for _ in range(int(rng.integers(6, 12))):
+        x, y = (int(v) for v in rng.integers(0, size, 2))
+        w, h = (int(v) for v in rng.integers(size // 16, size // 3, 2))
+        col = tuple(float(c) for c in rng.integers(0, 256, 3))
+        cv2.rectangle(img, (x, y), (x + w, y + h), col, -1)
+    for _ in range(int(rng.integers(2, 5))):
+        y = int(rng.integers(0, size))
+        col = tuple(float(c) for c in rng.integers(0, 256, 3))
+        cv2.line(img, (0, y), (size - 1, y + int(rng.integers(-20, 20))), col, int(rng.integers(1, 5)))
+    img += rng.normal(0.0, 6.0, (size, size, 1)).astype(np.float32)
+    return np.clip(img, 0, 255).astype(np.uint8)
+
+
+def _visual_mesh(mesh, smooth_deg: float = 35.0) -> tuple[list, list, list, list]:
+    """Unshared vertices with auto-smoothed normals (flat across sharp edges) and box-projected UVs."""
     V = np.asarray(mesh.vertices, float)
     F = np.asarray(mesh.faces, np.int64)
     fn = np.asarray(mesh.face_normals, float)
@@ -55,7 +78,12 @@ def _visual_mesh(mesh, smooth_deg: float = 35.0) -> tuple[list, list, list]:
     cos = np.sum(vnf * fnf, axis=1)
     normals = np.where((cos > np.cos(np.radians(smooth_deg)))[:, None], vnf, fnf)
     idx = np.arange(len(verts))
-    return verts.tolist(), idx.tolist(), normals.tolist()
+    # box projection: each face takes the two axes orthogonal to its dominant normal axis
+    span = 1.05 * float(np.max(mesh.extents))
+    dom = np.repeat(np.argmax(np.abs(fn), axis=1), 3)
+    other = np.array([[1, 2], [0, 2], [0, 1]])[dom]
+    uv = np.take_along_axis(verts, other, axis=1) / span + 0.5
+    return verts.tolist(), idx.tolist(), normals.tolist(), uv.tolist()
 
 
 def _pose_cylinder(a: np.ndarray, b: np.ndarray) -> tuple[list, list]:
@@ -132,12 +160,17 @@ class Renderer:
         self.shoulder = np.asarray(shoulder, float)
         self.obj_vertices = np.asarray(obj.mesh.vertices, float)
         self.table_rgb, self.table_depth = table_image(K, X_WC, width, height, table_h, rng)
-        verts, idx, normals = _visual_mesh(obj.mesh)
+        verts, idx, normals, uvs = _visual_mesh(obj.mesh)
         self.cid = pb.connect(pb.DIRECT)
         self.oid = pb.connect(pb.DIRECT)
         c = self.cid
-        ov = pb.createVisualShape(pb.GEOM_MESH, vertices=verts, indices=idx, normals=normals, rgbaColor=list(obj.rgba), physicsClientId=c)
+        ov = pb.createVisualShape(pb.GEOM_MESH, vertices=verts, indices=idx, normals=normals, uvs=uvs, rgbaColor=[1, 1, 1, 1], physicsClientId=c)
         self.obj = pb.createMultiBody(0, -1, ov, [0, 0, -10], physicsClientId=c)
+        with tempfile.TemporaryDirectory(prefix="vysics-synth-tex-") as tdir:
+            tex_file = os.path.join(tdir, "object.png")
+            cv2.imwrite(tex_file, cv2.cvtColor(object_texture(obj.rgba, rng), cv2.COLOR_RGB2BGR))
+            tex = pb.loadTexture(tex_file, physicsClientId=c)
+        pb.changeVisualShape(self.obj, -1, textureUniqueId=tex, physicsClientId=c)
         sv = pb.createVisualShape(pb.GEOM_SPHERE, radius=EE_RADIUS, rgbaColor=[0.75, 0.75, 0.78, 1], physicsClientId=c)
         self.sphere = pb.createMultiBody(0, -1, sv, [0, 0, -10], physicsClientId=c)
         rv = pb.createVisualShape(pb.GEOM_CYLINDER, radius=ARM_ROD[0], length=ARM_ROD[1], rgbaColor=[0.3, 0.3, 0.32, 1], physicsClientId=c)
@@ -146,7 +179,7 @@ class Renderer:
         self.forearm = pb.createMultiBody(0, -1, fv, [0, 0, -10], physicsClientId=c)
         self.occluder: Occluder | None = None
         self.occ_body = None
-        ov2 = pb.createVisualShape(pb.GEOM_MESH, vertices=verts, indices=idx, normals=normals, rgbaColor=list(obj.rgba), physicsClientId=self.oid)
+        ov2 = pb.createVisualShape(pb.GEOM_MESH, vertices=verts, indices=idx, normals=normals, physicsClientId=self.oid)
         self.obj_only = pb.createMultiBody(0, -1, ov2, [0, 0, -10], physicsClientId=self.oid)
         self._bounds: list[np.ndarray] = []  # world points bounding what is posed in the scene client
         self._X_WM = np.eye(4)

@@ -19,7 +19,8 @@ Model
   (push low / pivot high and return / topple high and lift away), as a tele-operator would.
 - Semi-implicit Euler at ``physics_hz`` (240 Hz default); the object state is sampled at the frame
   times i / fps, the robot at every physics step.
-Hidden viscous damping b (1/s) uses Bullet's per-step factor (1 - d)^dt with d = 1 - exp(-b).
+Hidden viscous damping b (1/s) is applied as explicit forces, F = -m b_lin v at the CoM and
+tau = -b_ang I_W w (Bullet's own damping is off), so free motion decays as exp(-b t).
 """
 
 from __future__ import annotations
@@ -343,11 +344,9 @@ def simulate(
             physicsClientId=cid,
         )
         # ... while getBasePositionAndOrientation reports the inertial frame: X_WM = X_WI @ inv(X_MI)
-        lin_d = 1.0 - np.exp(-effects.linear_damping)
-        ang_d = 1.0 - np.exp(-effects.angular_damping)
         pb.changeDynamics(
             body, -1, lateralFriction=1.0, restitution=effects.restitution, rollingFriction=0.0, spinningFriction=0.0,
-            linearDamping=lin_d, angularDamping=ang_d, localInertiaDiagonal=evals.tolist(), physicsClientId=cid,
+            linearDamping=0.0, angularDamping=0.0, localInertiaDiagonal=evals.tolist(), physicsClientId=cid,
         )
 
         # end-effector sphere
@@ -360,12 +359,22 @@ def simulate(
             pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
             return pose_from_pb(pos, orn) @ np.linalg.inv(X_MI)
 
+        damped = effects.linear_damping > 0 or effects.angular_damping > 0
+
         def step_robot(cmd: np.ndarray) -> None:
             x, _ = pb.getBasePositionAndOrientation(sphere, physicsClientId=cid)
             v, _ = pb.getBaseVelocity(sphere, physicsClientId=cid)
             F = EE_STIFFNESS * (cmd - np.asarray(x)) - EE_DAMPING * np.asarray(v) - EE_MASS * g
             pb.applyExternalForce(sphere, -1, F.tolist(), list(x), pb.WORLD_FRAME, physicsClientId=cid)
             pb.resetBaseVelocity(sphere, angularVelocity=[0.0, 0.0, 0.0], physicsClientId=cid)
+            if damped:  # hidden viscous damping as explicit forces (Bullet's own damping is off)
+                pc, qc = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
+                vc, wc = pb.getBaseVelocity(body, physicsClientId=cid)
+                R_WI = quat_to_mat(wxyz(qc))
+                f_d = -obj.mass * effects.linear_damping * np.asarray(vc)
+                tau_d = -effects.angular_damping * (R_WI @ (evals * (R_WI.T @ np.asarray(wc))))
+                pb.applyExternalForce(body, -1, f_d.tolist(), list(pc), pb.WORLD_FRAME, physicsClientId=cid)
+                pb.applyExternalTorque(body, -1, tau_d.tolist(), pb.WORLD_FRAME, physicsClientId=cid)
 
         # settle the object with the robot parked above (strongly damped first, so rockers come to rest)
         park = np.array([start_xy[0], start_xy[1], table_h + 0.6])
@@ -373,7 +382,7 @@ def simulate(
         for _ in range(int(0.8 * physics_hz)):
             step_robot(park)
             pb.stepSimulation(physicsClientId=cid)
-        pb.changeDynamics(body, -1, linearDamping=lin_d, angularDamping=ang_d, physicsClientId=cid)
+        pb.changeDynamics(body, -1, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
         pb.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=cid)
         for _ in range(int(0.2 * physics_hz)):
             step_robot(park)
