@@ -22,7 +22,7 @@ from typing import Any
 
 QUEUED, RUNNING, COMPLETED, FAILED = "queued", "running", "completed", "failed"
 STATES = (QUEUED, RUNNING, COMPLETED, FAILED)
-STAGE_ORDER = ("ingest", "tracking", "contact", "fusion", "export", "evaluation", "residuals", "bundle")
+STAGE_ORDER = ("ingest", "tracking", "contact", "fusion", "evaluation", "residuals", "bundle")
 PENDING, SKIPPED = "pending", "skipped"
 
 

@@ -136,6 +136,17 @@ def bundle_task(refs: dict[str, ArtifactRef], timings: dict[str, float], reasons
     return {"ref": ref, "zip": str(Path(ref.path) / "bundle.zip"), "folder": str(Path(ref.path) / "bundle")}
 
 
+def pipeline_signature(cfg: PipelineConfig, store: ArtifactStore) -> str:
+    """sha256 of every stage's code version and the config: a stored session whose last completed job has
+    another signature is out of date (``reprocess-datasets`` runs it again; unchanged stages are cached)."""
+    import hashlib
+    import json
+
+    stages = ("ingest", *(s.name for s in PIPELINE), "bundle")
+    payload = {"code": {s: store.code_version(s) for s in stages}, "config": cfg.to_dict()}
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()
+
+
 def _ensure_job(jobs: J.JobStore, job_id: str, st: dict, cfg: PipelineConfig) -> None:
     job = jobs.get(job_id)
     if job is None:
@@ -204,6 +215,7 @@ def process_session(session: str, data_dir: str | None = None, preset: str | Non
 
             copy_bundle(Path(b["folder"]), Path(out_dir))
         jobs.finish(job_id, bundle=b["zip"])
+        jobs.update(job_id, lambda j: j.update(signature=pipeline_signature(cfg, ArtifactStore(settings.artifacts_dir))))
         return {"job_id": job_id, "sha256": st["sha256"], "bundle_zip": b["zip"], "bundle_dir": b["folder"],
                 "skipped": reasons}
     except StageFailed as e:

@@ -84,37 +84,13 @@ def _tracking_inputs(ctx: StageContext):
     return TrackingInputs(session=ctx.session)
 
 
-def _backward_diff(p: np.ndarray, t: np.ndarray) -> np.ndarray:
-    v = np.zeros_like(p)
-    if len(t) > 1:
-        v[1:] = np.diff(p, axis=0) / np.maximum(np.diff(t), 1e-9)[:, None]
-    return v
-
-
 def _contact_inputs(ctx: StageContext):
-    from service.contact.types import ContactInputs
-    from service.transforms import mat_to_quat, quat_make_continuous
+    """``service.contact.inputs_from_tracking`` (the contact stage's own mapping of tracked poses to its
+    state layout; split at lost frames), at the declared mass (None: the contact stage's default)."""
+    import service.contact as contact
 
     s, tr = ctx.session, ctx.value("tracking")
-    t = np.asarray(tr.t, float)
-    q = quat_make_continuous(mat_to_quat(tr.X_WO[:, :3, :3]))
-    states = np.concatenate([q, tr.X_WO[:, :3, 3], tr.w_WO_O, tr.v_WO_W], 1)
-    dt = float(np.median(np.diff(t))) if len(t) > 1 else 1.0 / 30.0
-    from service.session.types import Friction
-
-    return ContactInputs(
-        dt=dt,
-        states=(states,),
-        ee_p_W=(np.asarray(s.p_WE, float),),
-        ee_v_W=(_backward_diff(np.asarray(s.p_WE, float), t),),
-        ee_radius=float(s.ee_radius),
-        table_height=float(s.table_height),
-        friction=s.friction if s.friction is not None else Friction(),
-        mass=float(s.mass) if s.mass is not None else float(getattr(ctx.config, "default_mass", DEFAULT_MASS_KG)),
-        mass_declared=s.mass is not None,
-        visible_points_O=tr.visible_points_O,
-        init_vertices_O=np.asarray(tr.visible_mesh.vertices, float) if not tr.visible_mesh.is_empty else None,
-    )
+    return contact.inputs_from_tracking(s, tr, tr.visible_points_O, s.mass)
 
 
 def _fusion_inputs(ctx: StageContext):
@@ -173,8 +149,6 @@ def _residual_inputs(ctx: StageContext):
         step_residuals=co.residuals,
     )
 
-
-DEFAULT_MASS_KG = 0.5  # when session.json declares no mass and the contact config has no default_mass
 
 PIPELINE: tuple[StageSpec, ...] = (
     StageSpec("tracking", "service.tracking", "service.tracking.types:TrackingOutputs", (), _tracking_inputs),
