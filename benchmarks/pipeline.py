@@ -88,11 +88,16 @@ def call_flow(session: Path, out: Path, data_dir: Path, preset: str | None) -> d
 
     fn = getattr(process_session, "fn", process_session)  # a Prefect flow object wraps the function
     params = set(inspect.signature(fn).parameters)
-    kwargs = {k: v for k, v in (("data_dir", str(data_dir)), ("preset", preset), ("out_dir", str(out))) if k in params}
+    kwargs = {k: v for k, v in (("data_dir", str(data_dir.resolve())), ("preset", preset), ("out_dir", str(out))) if k in params}
     res = process_session(str(session), **kwargs)
-    for cand in ([Path(res["bundle_dir"])] if isinstance(res, dict) and res.get("bundle_dir") else []) + [out]:
+    cands = [out]
+    if isinstance(res, dict) and res.get("bundle_dir"):
+        cands += [Path(res["bundle_dir"]), Path(res["bundle_dir"]) / "bundle"]
+    for cand in cands:
         if (cand / "report.json").is_file():
+            print(f"report: {cand / 'report.json'}")
             return json.loads((cand / "report.json").read_text())
+    print(f"no report.json found; the flow returned {res!r}")
     return res if isinstance(res, dict) else {"result": repr(res)}
 
 
@@ -136,6 +141,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     cmd = "/work/venv/bin/python benchmarks/pipeline.py " + " ".join(shlex.quote(x) for x in (argv or sys.argv[1:]))
     a.work.mkdir(parents=True, exist_ok=True)
+    # the flow's data (artifacts, jobs, Prefect's embedded database) go under the work folder
+    os.environ.setdefault("VYSICS_DATA_DIR", str((a.work / "data").resolve()))
     session = a.session or make_full_session(a.work, a.seed)
     out = a.work / "bundle"
     print(f"session: {session}")
@@ -151,8 +158,10 @@ def main(argv=None) -> int:
                 return 2
     wall = time.perf_counter() - t0
     print("\nstage timings (s):")
+    skipped = {k: v.get("reason") for k, v in (rep.get("stages") or {}).items() if isinstance(v, dict) and not v.get("ran", True)}
     for k, v in (rep.get("timings_s") or {}).items():
-        print(f"  {k:<12} {v:8.1f}" if isinstance(v, (int, float)) else f"  {k:<12} {v}")
+        note = f"   (skipped: {skipped[k]})" if k in skipped else ""
+        print(f"  {k:<12} {v:8.1f}" if isinstance(v, (int, float)) else f"  {k:<12} {'—':>8}{note}")
     gb = mem.peak / 1024**3
     print(f"\nwall time   {wall:8.1f} s   (target ≤ {TARGET_S:.0f} s: {'met' if wall <= TARGET_S else 'NOT met'})")
     print(f"peak memory {gb:8.2f} GB  (target ≤ {TARGET_GB:.0f} GB: {'met' if gb <= TARGET_GB else 'NOT met'})")
