@@ -20,6 +20,7 @@ group).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
@@ -119,14 +120,36 @@ def geometry_metrics(meshes: dict[str, Mesh], gt: GroundTruth | None, X_OG0: np.
 
 
 # ------------------------------------------------------------------------------------------- dynamics
-def true_geometry_model(gt_mesh: Mesh, X_OG: np.ndarray, like: ObjectModel) -> ObjectModel:
-    """The true shape placed in O (one convex piece: its hull) with the inertia and friction of ``like``."""
-    import trimesh
+def collision_pieces(mesh: Mesh, how: str) -> tuple[Mesh, ...]:
+    """Convex pieces of a mesh: "decompose" = the bundle's own decomposition (exact hull when nearly convex,
+    else V-HACD), "hull" = its convex hull."""
+    if how == "decompose":
+        from service.export.collision import make_collision_pieces
+        from service.export.types import ExportConfig
 
+        return tuple(make_collision_pieces(mesh, ExportConfig.fast()))
+    if how == "hull":
+        import trimesh
+
+        v = np.asarray(mesh.vertices, float)
+        return (Mesh.from_trimesh(trimesh.Trimesh(v, np.zeros((0, 3), np.int64), process=False).convex_hull),)
+    raise ValueError(f"collision must be 'decompose' or 'hull', got {how!r}")
+
+
+def _with_pieces(model: ObjectModel, how: str) -> ObjectModel:
+    if model.collision and not all(c.is_empty for c in model.collision):
+        return model
+    if model.visual is None or model.visual.is_empty:
+        raise ValueError("model has neither collision pieces nor a visual mesh")
+    return replace(model, collision=collision_pieces(model.visual, how))
+
+
+def true_geometry_model(gt_mesh: Mesh, X_OG: np.ndarray, like: ObjectModel, how: str = "decompose") -> ObjectModel:
+    """The true shape placed in O (convex pieces as ``collision_pieces``) with the inertia, friction and effects
+    of ``like``."""
     v = transform_points(X_OG, np.asarray(gt_mesh.vertices, float))
     m = Mesh(v, np.asarray(gt_mesh.faces, np.int64))
-    hull = Mesh.from_trimesh(trimesh.Trimesh(v, np.asarray(gt_mesh.faces), process=False).convex_hull)
-    return ObjectModel(visual=m, collision=(hull,), mass=like.mass, mass_declared=like.mass_declared,
+    return ObjectModel(visual=m, collision=collision_pieces(m, how), mass=like.mass, mass_declared=like.mass_declared,
                        com_O=like.com_O, inertia_O=like.inertia_O, friction=like.friction, effects=dict(like.effects))
 
 
@@ -213,7 +236,7 @@ def dynamics_metrics(inp: EvaluationInputs, gt: GroundTruth | None, X_OG0: np.nd
     like = models.get("fused") or next(iter(models.values()), None)
     if gt is not None and gt.mesh is not None and like is not None:
         X_OG = X_OG0 if X_OG0 is not None else _initial_X_OG(like.visual, gt.mesh, None)
-        models[GT_METHOD] = true_geometry_model(gt.mesh, X_OG, like)
+        models[GT_METHOD] = true_geometry_model(gt.mesh, X_OG, like, cfg.collision)
     else:
         out[GT_METHOD] = {"pos_err_m": None, "rot_err_deg": None, "time_before_divergence_s": None, "contact_iou": None,
                           "reason": "no ground_truth/mesh.obj (or no model to take the inertia from)"}
@@ -222,6 +245,7 @@ def dynamics_metrics(inp: EvaluationInputs, gt: GroundTruth | None, X_OG0: np.nd
         if progress:
             progress(i / max(len(models), 1), f"rollout {name}")
         try:
+            model = _with_pieces(model, cfg.collision)
             r = rollout(model, inp.X_WO[k0], v0, w0, path, s.table_height, s.ee_radius, sim_cfg, t_out=t_out)
         except ValueError as e:
             out[name] = {"pos_err_m": None, "rot_err_deg": None, "time_before_divergence_s": None, "contact_iou": None,

@@ -31,12 +31,13 @@ class EvaluationConfig:
     initial_velocity: str = "finite_difference"  # or "zero"
     rest_translation_m: float = 0.002  # first-frame motion below both is tracking noise: start at rest
     rest_rotation_deg: float = 1.0
+    collision: str = "decompose"  # pieces for a model without any: "decompose" (as the bundle's URDF) | "hull"
     geometry: bool = True
     dynamics: bool = True
 
     @classmethod
     def fast(cls) -> "EvaluationConfig":
-        return cls(n_samples=800, icp_max_iter=60, iou_pitch=0.003, iou_max_res=64, sim=SimConfig.fast())
+        return cls(n_samples=800, icp_max_iter=60, iou_pitch=0.003, iou_max_res=64, sim=SimConfig.fast(), collision="hull")
 
 
 @dataclass(frozen=True)

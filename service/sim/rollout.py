@@ -1,7 +1,7 @@
 """Open-loop rollout of an object model on a table, pushed by a spherical end effector (pybullet).
 
 Scene: the table is the half-space z ≤ ``table_height`` of W; the object is one rigid body built from
-the model's convex collision pieces (Bullet convex hulls), with mass m, centre of mass ``com_O`` and
+the model's convex collision pieces (Bullet convex hulls; the hull of the visual mesh if it has none), with mass m, centre of mass ``com_O`` and
 rotational inertia ``I_O`` about it (principal axes: ``I_O = R diag(λ) Rᵀ``, the Bullet inertial
 frame is ``X_OI = (R, com_O)``); the end effector is a sphere of radius ``ee_radius`` and mass ``m_E``,
 gravity-compensated, driven by a force
@@ -24,6 +24,7 @@ Reference for the protocol: method-notes §8.3 (Drake there; pybullet here, same
 from __future__ import annotations
 
 import tempfile
+from dataclasses import replace
 from pathlib import Path
 from typing import Mapping
 
@@ -53,9 +54,19 @@ def principal_frame(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return lam, R
 
 
+def with_collision(model: ObjectModel) -> ObjectModel:
+    """The model itself, or, when it has no collision pieces, with the convex hull of its visual mesh."""
+    if model.collision and not all(c.is_empty for c in model.collision):
+        return model
+    if model.visual is None or model.visual.is_empty or len(model.visual.vertices) < 4:
+        raise ValueError("model has neither collision pieces nor a visual mesh")
+    import trimesh
+
+    hull = trimesh.Trimesh(np.asarray(model.visual.vertices, float), np.zeros((0, 3), np.int64), process=False).convex_hull
+    return replace(model, collision=(Mesh.from_trimesh(hull),))
+
+
 def _check(model: ObjectModel, X_WO0: np.ndarray, path: RobotPath, t_out: np.ndarray) -> None:
-    if not model.collision or all(c.is_empty for c in model.collision):
-        raise ValueError("model has no collision pieces")
     if not np.isfinite(model.mass) or model.mass <= 0:
         raise ValueError(f"model mass must be positive, got {model.mass}")
     lam, _ = principal_frame(model.inertia_O)
@@ -96,6 +107,7 @@ def rollout(
         robot_path = RobotPath(np.asarray(robot_path[0], float), np.asarray(robot_path[1], float))
     t_out = np.asarray(robot_path.t if t_out is None else t_out, float)
     X_WO0 = np.asarray(X_WO0, float)
+    model = with_collision(model)
     _check(model, X_WO0, robot_path, t_out)
     s: SimSettings = settings_for(model.effects, effects)
 

@@ -146,3 +146,18 @@ def test_initial_velocity_body_rates_and_rest():
     X[1, :3, :3] = R0 @ so3_exp(np.array([0.005, 0.0, 0.0]))
     v, w = initial_velocity(t, X, 0, 1, 0.002, 1.0)
     assert not v.any() and not w.any()
+
+
+def test_collision_pieces_of_a_non_convex_mesh():
+    from service.evaluation.run import collision_pieces
+
+    a = trimesh.creation.box((0.1, 0.03, 0.03))
+    b = trimesh.creation.box((0.03, 0.03, 0.1))
+    b.apply_translation([-0.035, 0, 0.035])
+    # an L made of two boxes sharing no faces: the hull fills the notch, the decomposition does not
+    ell = Mesh.from_trimesh(trimesh.util.concatenate([a, b]))
+    hull = collision_pieces(ell, "hull")
+    assert len(hull) == 1
+    pieces = collision_pieces(ell, "decompose")
+    vol = sum(p.to_trimesh().volume for p in pieces)
+    assert len(pieces) >= 2 and vol < 0.8 * hull[0].to_trimesh().volume

@@ -155,3 +155,13 @@ def test_impedance_mode_settles_critically_damped_on_a_step_command():
     # lag: halfway after about 1.68 / omega with omega = sqrt(K / m) = 38.7 rad/s
     k = np.argmax(r.p_WE[:, 0] > 0.525)
     assert 0.02 < T[k] - 0.5 < 0.1
+
+
+def test_model_without_collision_pieces_uses_the_hull_of_its_visual_mesh():
+    from dataclasses import replace
+
+    m = box_model()
+    p = np.stack([-0.2 + 0.12 * T, np.zeros_like(T), np.full_like(T, 0.04)], -1)
+    a = rollout(m, at(0.05), np.zeros(3), np.zeros(3), (T, p), 0.0, 0.02, CFG)
+    b = rollout(replace(m, collision=()), at(0.05), np.zeros(3), np.zeros(3), (T, p), 0.0, 0.02, CFG)
+    np.testing.assert_allclose(a.X_WO, b.X_WO, atol=1e-9)
