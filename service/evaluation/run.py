@@ -31,7 +31,6 @@ from service.evaluation.types import METHODS, EvaluationConfig, EvaluationInputs
 from service.mesh import Mesh
 from service.model import ObjectModel
 from service.sim import RobotPath, rollout
-from service.sim.types import SimConfig
 from service.transforms import X_inv, make_X, pose_errors, rotation_angle, so3_log, transform_points
 
 GT_METHOD = "ground_truth_geometry"
@@ -223,7 +222,7 @@ def dynamics_metrics(inp: EvaluationInputs, gt: GroundTruth | None, X_OG0: np.nd
     k1 = k0 + 1 + int(nxt[0]) if (cfg.initial_velocity == "finite_difference" and len(nxt)) else None
     v0, w0 = initial_velocity(t, inp.X_WO, k0, k1, cfg.rest_translation_m, cfg.rest_rotation_deg)
     path, mode = _robot_path(inp, cfg)
-    sim_cfg = SimConfig(**{**cfg.sim.__dict__, "robot_mode": mode})
+    sim_cfg = replace(cfg.sim, robot_mode=mode)
     t_out = t[k0:]
     valid = tracked[k0:]
     X_ref = inp.X_WO[k0:]
