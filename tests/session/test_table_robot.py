@@ -123,3 +123,47 @@ def test_table_preferred_over_larger_floor_below():
     assert n_floor > 2 * n_table > 0.4 * n_floor  # more floor than table in view
     plane = detect_table_plane([d], [m], K2, X_WC)
     assert plane is not None and abs(plane.height) < 0.005
+
+
+def test_slices_through_a_tall_occluder_are_not_a_table():
+    """The object's lower part is hidden (its mask starts 6 cm up), so horizontal slices through a tall
+    unmasked box next to it lie below z_max; they must not be taken for the table."""
+    X_WC = look_at(np.array([0.1, -0.4, 0.5]), np.array([0.5, 0.0, 0.0]))
+    K2 = np.array([[60.0, 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]])
+    rng = np.random.default_rng(2)
+    d_obj, m_obj = render(X_WC, K2, 0.0, [0.45, -0.05, 0.0], [0.57, 0.07, 0.12], w=64, h=48)
+    d_wall, m_wall = render(X_WC, K2, 0.0, [0.3, 0.1, 0.0], [0.7, 0.35, 0.5], w=64, h=48)
+    d = np.where(m_wall & ~(m_obj & (d_obj < d_wall)), d_wall, d_obj)
+    d = (d + rng.normal(0, 0.002, d.shape) * (d > 0)).astype(np.float32)
+    u, v = np.meshgrid(np.arange(64), np.arange(48))
+    r = np.stack([(u - 31.5) / 60.0, (v - 23.5) / 60.0, np.ones_like(u, float)], -1) @ X_WC[:3, :3].T
+    z = (X_WC[:3, 3] + d[..., None] * r)[..., 2]
+    mask = m_obj & (d <= d_obj + 1e-6) & (z > 0.06)
+    assert mask.sum() > 20
+    plane = detect_table_plane([d], [mask], K2, X_WC)
+    assert plane is not None and abs(plane.height) < 0.005
+
+
+def test_slightly_tilted_table_from_calibration_error():
+    """X_WC off by 3 deg: the table is tilted in W; its height under the object is still found."""
+    from service.transforms import so3_exp
+
+    X_true = look_at(np.array([0.0, -0.2, 0.7]), np.array([0.5, 0.0, 0.0]))
+    K2 = np.array([[60.0, 0, 31.5], [0, 60.0, 23.5], [0, 0, 1]])
+    d, m = render(X_true, K2, 0.0, [0.45, -0.05, 0.0], [0.55, 0.05, 0.08], w=64, h=48, noise=0.002)
+    p0 = np.array([0.5, 0.0, 0.0])  # rotate the world about a table point under the object
+    R = so3_exp(np.deg2rad(3.0) * np.array([1.0, 0.5, 0.0]) / np.linalg.norm([1.0, 0.5]))
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = p0 - R @ p0
+    X_bad = T @ X_true
+    plane = detect_table_plane([d.astype(np.float32)], [m], K2, X_bad)
+    assert plane is not None
+    n_true = R @ np.array([0.0, 0.0, 1.0])
+    assert np.degrees(np.arccos(min(1.0, plane.normal_W @ n_true))) < 1.0
+    # expected: the rotated table plane's z under the object's centroid (seen through X_bad)
+    from service.session.table import back_project
+
+    xy = back_project(d.astype(np.float32), K2, X_bad, m)[:, :2].mean(axis=0)
+    z_exp = p0[2] - (n_true[0] * (xy[0] - p0[0]) + n_true[1] * (xy[1] - p0[1])) / n_true[2]
+    assert abs(plane.height - z_exp) < 0.005
