@@ -1,0 +1,124 @@
+"""Contact-induced SDF losses of Vysics §4.B (paper Eqs. loss_support_point, loss_hyperplane, loss_convex).
+
+S is the SDF being fitted (metres), queried through ``query_fn(x (M,3) float32 tensor) -> (M,)``.
+Following BundleSDF, whose network predicts S in truncation units, every residual is divided by
+τ (= 1 cm), so the paper's weights (support point 2, hyperplane 1, convexity 1) sit on the same scale
+as the depth terms (near-surface 3000, empty space 1, uncertain free space 50).
+
+- support point:  L_sp  = mean_j ((S(x_j) − l_j) / τ)²                     on ray samples (x, l)
+- hyperplane:     L_hc  = mean_k (min(0, S(q_k) − b_k) / τ)²                S(q) ≥ b = (q − v)·m̂
+- convexity:      L_cvx = mean_{valid} max(0, S(x) − (t S̄(s₁) + (1 − t) l₂)) / τ,
+                  x = t s₁ + (1 − t) s₂, s₁ a near-surface point (|S(s₁)| ≤ ε), s₂ a ray sample with
+                  target l₂; S̄(s₁) is S(s₁) detached (the bound is a target, not trained through).
+                  Convexity of the SDF of a convex body makes S(x) ≤ t S(s₁) + (1 − t) S(s₂).
+
+``PhysibleLosses`` is the ``extra_losses`` callable given to ``service.sdf.fit_sdf``: each step it
+draws up to n_sp / n_hc / n_cvx samples from fixed pools (seeded) and returns the weighted sum.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+import torch
+
+from service.fusion.types import LossWeights
+
+QueryFn = Callable[[torch.Tensor], torch.Tensor]
+
+
+def support_point_loss(query_fn: QueryFn, x: torch.Tensor, target: torch.Tensor, tau: float) -> torch.Tensor:
+    """x (M,3), target (M,) metres -> scalar mean ((S(x) − l)/τ)²."""
+    if len(x) == 0:
+        return torch.zeros(())
+    return (((query_fn(x) - target) / tau) ** 2).mean()
+
+
+def hyperplane_loss(query_fn: QueryFn, q: torch.Tensor, bound: torch.Tensor, tau: float) -> torch.Tensor:
+    """q (M,3), lower bound (M,) metres -> scalar mean (min(0, S(q) − b)/τ)²."""
+    if len(q) == 0:
+        return torch.zeros(())
+    return (torch.clamp((query_fn(q) - bound) / tau, max=0.0) ** 2).mean()
+
+
+def convexity_loss(
+    query_fn: QueryFn,
+    s1: torch.Tensor,
+    s2: torch.Tensor,
+    l2: torch.Tensor,
+    t: torch.Tensor,
+    tau: float,
+    eps: float,
+) -> torch.Tensor:
+    """s1, s2 (M,3), l2 (M,), t (M,) in [0,1] -> scalar mean over pairs with |S(s₁)| ≤ ε of
+    max(0, S(t s₁ + (1 − t) s₂) − (t S̄(s₁) + (1 − t) l₂)) / τ (0 when no pair is valid)."""
+    if len(s1) == 0:
+        return torch.zeros(())
+    with torch.no_grad():
+        S1 = query_fn(s1)
+    valid = S1.abs() <= eps
+    if not bool(valid.any()):
+        return torch.zeros(())
+    s1, s2, l2, t, S1 = s1[valid], s2[valid], l2[valid], t[valid], S1[valid]
+    x = t[:, None] * s1 + (1.0 - t[:, None]) * s2
+    bound = t * S1 + (1.0 - t) * l2
+    return torch.relu((query_fn(x) - bound) / tau).mean()
+
+
+class PhysibleLosses:
+    """``extra_losses`` callable for ``fit_sdf``: weighted L_sp + L_hc + L_cvx on per-step subsets.
+
+    Pools (numpy, frame O): ray samples ``x_sp`` (M,3) with targets ``l_sp`` (M,); hyperplane samples
+    ``q_hc`` (K,3) with bounds ``b_hc`` (K,); near-surface points ``s_vis`` (V,3) for convexity.
+    """
+
+    def __init__(
+        self,
+        x_sp: np.ndarray,
+        l_sp: np.ndarray,
+        q_hc: np.ndarray,
+        b_hc: np.ndarray,
+        s_vis: np.ndarray,
+        weights: LossWeights,
+        tau: float,
+        seed: int = 0,
+    ):
+        f = lambda a: torch.from_numpy(np.ascontiguousarray(a, dtype=np.float32))  # noqa: E731
+        self.x_sp, self.l_sp = f(np.reshape(x_sp, (-1, 3))), f(np.reshape(l_sp, -1))
+        self.q_hc, self.b_hc = f(np.reshape(q_hc, (-1, 3))), f(np.reshape(b_hc, -1))
+        self.s_vis = f(np.reshape(s_vis, (-1, 3)))
+        if len(self.x_sp) != len(self.l_sp) or len(self.q_hc) != len(self.b_hc):
+            raise ValueError("sample pools and their targets must have the same length")
+        self.w = weights
+        self.tau = float(tau)
+        self.gen = torch.Generator().manual_seed(int(seed))
+        self.last: dict[str, float] = {}
+
+    def _pick(self, n_pool: int, n: int) -> torch.Tensor:
+        if n_pool <= n:
+            return torch.arange(n_pool)
+        return torch.randint(0, n_pool, (n,), generator=self.gen)
+
+    def __call__(self, query_fn: QueryFn, step: int) -> torch.Tensor:
+        w = self.w
+        total = torch.zeros(())
+        parts = {}
+        if w.sp > 0 and len(self.x_sp):
+            i = self._pick(len(self.x_sp), w.n_sp)
+            parts["sp"] = support_point_loss(query_fn, self.x_sp[i], self.l_sp[i], self.tau)
+            total = total + w.sp * parts["sp"]
+        if w.hc > 0 and len(self.q_hc):
+            i = self._pick(len(self.q_hc), w.n_hc)
+            parts["hc"] = hyperplane_loss(query_fn, self.q_hc[i], self.b_hc[i], self.tau)
+            total = total + w.hc * parts["hc"]
+        if w.cvx > 0 and len(self.x_sp) and len(self.s_vis):
+            i1 = torch.randint(0, len(self.s_vis), (w.n_cvx,), generator=self.gen)
+            i2 = torch.randint(0, len(self.x_sp), (w.n_cvx,), generator=self.gen)
+            t = torch.rand(w.n_cvx, generator=self.gen)
+            parts["cvx"] = convexity_loss(
+                query_fn, self.s_vis[i1], self.x_sp[i2], self.l_sp[i2], t, self.tau, w.eps_cvx
+            )
+            total = total + w.cvx * parts["cvx"]
+        self.last = {k: float(v.detach()) for k, v in parts.items()}
+        return total

@@ -1,0 +1,101 @@
+"""Fusion stage: a box seen from one side only, contacts on its hidden faces (sim-to-recover)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from service.errors import StageFailed
+from service.fusion import FusionConfig, FusionInputs, LossWeights, run, session_rays
+from service.fusion.stage import fusion_bounds, select_frames
+from service.sdf import extract_mesh, fit_sdf, sdf_query
+from tests.fusion.scenes import HALF, box_mesh, chamfer, face_points, hidden_contacts, write_box_session
+
+CFG = FusionConfig.fast()
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    session, X_WO = write_box_session(tmp_path_factory.mktemp("box_session"))
+    tracked = np.ones(len(X_WO), bool)
+    rays = session_rays(session, X_WO, tracked, CFG)
+    visible = fit_sdf(rays, dataclasses.replace(CFG.sdf, steps=60))  # the first (vision-only) pass
+    P, N = hidden_contacts(np.random.default_rng(0))
+    inputs = FusionInputs(session, X_WO, tracked, visible, P, N, box_mesh())
+    return inputs, visible, extract_mesh(visible)
+
+
+def face_error(grid, axis, sign):
+    pts, _ = face_points(300, axis, sign, np.random.default_rng(1), margin=0.2)
+    return float(np.mean(sdf_query(grid, pts)))
+
+
+def test_run_recovers_hidden_faces(scene):
+    inputs, visible, visible_mesh = scene
+    progress = []
+    out = run(inputs, CFG, progress=lambda f, m: progress.append(f))
+    truth = box_mesh()
+    c_vis, c_fused = chamfer(visible_mesh, truth), chamfer(out.mesh, truth)
+    assert c_vis > 0.005  # the vision-only surface misses the hidden half
+    assert c_fused < 0.5 * c_vis and c_fused < 0.003
+    for axis, sign in [(0, -1.0), (2, -1.0), (1, -1.0)]:  # hidden faces with contacts
+        assert abs(face_error(visible, axis, sign)) > 0.005
+        assert abs(face_error(out.sdf, axis, sign)) < 0.002
+    tm = out.mesh.to_trimesh()
+    assert tm.is_watertight
+    assert tm.volume == pytest.approx(np.prod(2 * HALF), rel=0.15)
+    assert out.metrics["physible_points"] == 70 and out.metrics["anchors"] > 0
+    assert progress[0] == 0.0 and progress[-1] == 1.0 and all(np.diff(progress) >= 0)
+
+
+def test_contact_losses_attach_hidden_faces_from_visible_start(scene):
+    """From the vision-only grid, the support-point/hyperplane/convexity terms alone close the box."""
+    inputs, _, _ = scene
+    cfg = dataclasses.replace(CFG, init="visible", sdf=dataclasses.replace(CFG.sdf, steps=80))
+    with_terms = run(inputs, cfg)
+    without = run(inputs, dataclasses.replace(cfg, weights=LossWeights(sp=0.0, hc=0.0, cvx=0.0)))
+    truth = box_mesh()
+    assert chamfer(with_terms.mesh, truth) < 0.75 * chamfer(without.mesh, truth)
+    assert abs(face_error(with_terms.sdf, 0, -1.0)) < 0.5 * abs(face_error(without.sdf, 0, -1.0))
+
+
+def test_bounds_cover_visible_and_physible():
+    vis = np.random.default_rng(0).uniform(-0.05, 0.05, size=(500, 3))
+    P = np.array([[0.0, 0.0, -0.12], [0.09, 0.0, 0.0]])
+    b = fusion_bounds(vis, None, P, pad=0.02)
+    assert np.all(b[0] <= np.minimum(vis.min(0), P.min(0)) - 0.02 + 1e-3)
+    assert np.all(b[1] >= P.max(0) + 0.02 - 1e-12)
+
+
+def test_select_frames_spreads_over_tracked():
+    tracked = np.zeros(100, bool)
+    tracked[10:90] = True
+    idx = select_frames(tracked, 5)
+    assert len(idx) == 5 and idx[0] == 10 and idx[-1] == 89 and tracked[idx].all()
+    assert select_frames(tracked, 1000).tolist() == list(range(10, 90))
+
+
+def test_bad_inputs(scene):
+    inputs, _, _ = scene
+    with pytest.raises(ValueError, match="X_WO"):
+        run(dataclasses.replace(inputs, X_WO=inputs.X_WO[:-1]), CFG)
+    with pytest.raises(ValueError, match="tracked"):
+        run(dataclasses.replace(inputs, tracked=inputs.tracked[:-1]), CFG)
+    with pytest.raises(StageFailed):
+        run(dataclasses.replace(inputs, tracked=np.zeros_like(inputs.tracked)), CFG)
+    with pytest.raises(ValueError):
+        run(dataclasses.replace(inputs, physible_normals_O=inputs.physible_normals_O[:3]), CFG)
+    with pytest.raises(ValueError):
+        FusionConfig(init="nope")
+
+
+def test_far_physible_outliers_are_dropped(scene):
+    inputs, _, _ = scene
+    P = np.vstack([inputs.physible_points_O, [[2.0, 0.0, 0.0]]])
+    N = np.vstack([inputs.physible_normals_O, [[1.0, 0.0, 0.0]]])
+    cfg = dataclasses.replace(CFG, sdf=dataclasses.replace(CFG.sdf, steps=5))
+    out = run(dataclasses.replace(inputs, physible_points_O=P, physible_normals_O=N), cfg)
+    assert out.metrics["physible_dropped"] == 1
+    assert out.sdf.bounds_O[1][0] < 0.5  # the grid was not stretched to the outlier
