@@ -161,3 +161,28 @@ def test_collision_pieces_of_a_non_convex_mesh():
     pieces = collision_pieces(ell, "decompose")
     vol = sum(p.to_trimesh().volume for p in pieces)
     assert len(pieces) >= 2 and vol < 0.8 * hull[0].to_trimesh().volume
+
+
+def test_trajectory_metrics_and_contact_scores_by_hand():
+    from service.evaluation.run import contact_scores, trajectory_metrics
+
+    t = np.arange(6) * 0.1
+    ref = np.tile(np.eye(4), (6, 1, 1))
+    sim = ref.copy()
+    sim[:, 0, 3] = [0.0, 0.02, 0.05, 0.12, 0.2, 0.3]  # crosses 0.10 m at frame 3
+    valid = np.array([True, True, True, False, True, True])  # frame 3 not tracked: first divergence at frame 4
+    m, dp, _ = trajectory_metrics(t, sim, ref, valid, 0.10, 45.0)
+    assert m["time_before_divergence_s"] == pytest.approx(0.4)
+    assert m["pos_err_m"] == pytest.approx(np.mean([0.0, 0.02, 0.05, 0.2, 0.3]))
+    assert np.isnan(dp[3])
+    sim[:, 0, 3] = 0.01
+    sim[2, :3, :3] = so3_exp(np.array([0.0, 0.0, np.radians(30)]))
+    m, _, dr = trajectory_metrics(t, sim, ref, np.ones(6, bool), 0.10, 45.0)
+    assert m["time_before_divergence_s"] == pytest.approx(0.5 + 1e-3)  # never: last time + 1 ms
+    assert m["rot_err_deg"] == pytest.approx(30 / 6)
+    a = np.array([0, 1, 1, 1, 0, 0], bool)
+    b = np.array([0, 0, 1, 1, 1, 0], bool)
+    s = contact_scores(a, b)
+    assert s["contact_iou"] == pytest.approx(4 / 6) and s["contact_iou_jaccard"] == pytest.approx(2 / 4)
+    s = contact_scores(np.zeros(6, bool), np.zeros(6, bool))
+    assert s["contact_iou"] == 1.0 and s["contact_iou_jaccard"] is None and s["contact_iou_jaccard_reason"]
