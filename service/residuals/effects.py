@@ -50,6 +50,7 @@ class Effect:
     needs_robot: bool = False
     description: str = ""
     resolution: tuple[float, ...] = ()  # smallest physically meaningful change from ``null`` per parameter
+    modes: tuple[str, ...] = ("free_flight", "sliding", "robot_contact", "impact", "rest")  # where it acts
 
     def clip(self, theta) -> tuple[float, ...]:
         return tuple(float(np.clip(v, lo, hi)) for v, lo, hi in zip(theta, self.lower, self.upper))
@@ -196,66 +197,77 @@ register(Effect(
     _sim_keys(("gravity_scale",)),
     description="|g| = 9.81·s (also absorbs a camera time-scale error: s = time_scale²)",
     resolution=(0.004,),
+    modes=("free_flight",),
 ))
 register(Effect(
     "time_scale", ("time_scale",), (0.92,), (1.08,), (1.0,), _grav_sig, _time_guess,
     _sim_keys(("time_scale",)),
     description="physical seconds per data second (camera clock rate error)",
     resolution=(0.002,),
+    modes=("free_flight",),
 ))
 register(Effect(
     "table_tilt", ("table_tilt_x", "table_tilt_y"), (-0.15, -0.15), (0.15, 0.15), (0.0, 0.0),
     _tilt_sig, _tilt_guess, _sim_keys(("table_tilt_x", "table_tilt_y")),
     description="table tilt = gravity direction in W: g = R_y(ty) R_x(tx) (0,0,-|g|), rad",
     resolution=(0.003, 0.003),
+    modes=("free_flight", "sliding", "rest"),
 ))
 register(Effect(
     "table_offset", ("table_offset",), (-0.01,), (0.01,), (0.0,), _table_sig, _table_guess,
     _sim_keys(("table_offset",)),
     description="table surface height error, m (apparent penetration or hovering at rest)",
     resolution=(0.0003,),
+    modes=("rest",),
 ))
 register(Effect(
     "restitution", ("restitution",), (0.0,), (0.95,), (0.0,), _rest_sig, _rest_guess,
     _sim_keys(("restitution",)),
     description="coefficient of restitution of the object (table and sphere count 1)",
     resolution=(0.05,),
+    modes=("impact",),
 ))
 register(Effect(
     "linear_damping", ("linear_damping",), (0.0,), (5.0,), (0.0,), _lin_damp_sig, _lin_damp_guess,
     _sim_keys(("linear_damping",)),
     description="viscous linear damping rate b, 1/s: free motion v(t) = v(0) exp(-b t)",
     resolution=(0.05,),
+    modes=("free_flight",),
 ))
 register(Effect(
     "angular_damping", ("angular_damping",), (0.0,), (5.0,), (0.0,), _ang_damp_sig, _ang_damp_guess,
     _sim_keys(("angular_damping",)),
     description="viscous angular damping rate b, 1/s: free spin w(t) = w(0) exp(-b t)",
     resolution=(0.05,),
+    modes=("free_flight",),
 ))
 register(Effect(
     "friction_table", ("friction_object_table",), (0.02,), (1.5,), (float("nan"),), _fric_table_sig,
     _fric_table_guess, _sim_keys(("friction_object_table",)),
     description="object-table Coulomb friction replacing the prior",
     resolution=(0.02,),
+    modes=("sliding",),
 ))
 register(Effect(
     "friction_robot", ("friction_scale_robot",), (0.2,), (5.0,), (1.0,), _fric_robot_sig, _fric_robot_guess,
     _sim_keys(("friction_scale_robot",)), needs_robot=True,
     description="factor on the object-robot Coulomb friction of the prior",
     resolution=(0.1,),
+    modes=("robot_contact",),
 ))
 register(Effect(
     "com_offset", ("com_offset_x", "com_offset_y", "com_offset_z"), (-0.03,) * 3, (0.03,) * 3, (0.0,) * 3,
     _com_sig, _com_guess, _com_apply,
     description="centre-of-mass shift in O, m (where the CoM was held fixed)",
     resolution=(0.002,) * 3,
+    modes=("sliding", "rest", "robot_contact"),
 ))
 register(Effect(
     "clock_offset", ("clock_offset",), (-0.2,), (0.2,), (0.0,), _clock_sig, _clock_guess,
     _sim_keys(("clock_offset",)), needs_robot=True,
     description="robot-camera clock offset, s: robot path read at t + delta",
     resolution=(0.005,),
+    modes=("robot_contact",),
 ))
 
 

@@ -4,20 +4,29 @@ Error of a rollout segment s (frames k of the segment, open loop from the tracke
 ``e_s = mean_k ( |p_sim,k − p_obs,k| + ρ · ∠(R_obs,kᵀ R_sim,k) )`` with ρ = ``rot_scale_m``
 (default: the object radius), so e is in metres.
 
+Every effect acts in some contact modes (gravity in free flight, restitution at impacts, the table
+offset at rest and while sliding, …); its fit and its test use only the frames of those modes (for
+impact effects, every frame from the first impact of a block on), in blocks with >= 3 such frames.
+This keeps the contact chaos of unrelated frames out of both, and stops an effect from being
+accepted for soaking up errors it does not model (e.g. a low gravity softening impacts).
+
 Fit of an effect with parameters θ (1–3 numbers, bounded): minimise the mean training error
-``E_train(θ) = mean_{s∈train} e_s(θ)``. One parameter: a coarse grid over the bounds (including
+``E_train(θ) = mean_{s∈train} e_s(θ)`` over (at most ``max_train_segments``) training blocks where it
+acts. One parameter: a coarse grid over the bounds (including
 the signature's guess and the null value), then bounded Brent search in the bracket around the best
 grid point. Several parameters: Nelder–Mead from the guess in coordinates scaled to the bounds,
 clipped to the bounds.
 
 Selection (greedy forward): in each round every remaining candidate is fitted on top of the effects
-already accepted; on the held-out blocks, d_s = e_s(before) − e_s(after). A candidate passes when
+already accepted; on the held-out blocks where it acts, d_s = e_s(before) − e_s(after). A candidate passes when
 (a) mean(d)/mean(e_before) ≥ ``min_rel_improvement``; (b) the one-sided (1 − α) percentile-bootstrap
 lower bound of mean(d), resampling held-out units (trajectories, or blocks for one long session), is
 > 0; (c) a one-sided sign test over blocks (ties |d| ≤ ``tie_tol_rel``·median(e_before) dropped) gives
 p < α — robust to the few chaotic blocks where any tiny change flips a contact outcome; and (d) the
-fitted parameter is farther than its resolution from the no-effect value. The passing candidate
-with the largest mean(d) is accepted; the round repeats until none passes or ``max_effects`` are
+fitted parameter is farther than its resolution from the no-effect value; and (e) the error over all
+frames of all held-out blocks does not grow significantly (its (1 − α) bootstrap upper bound of
+mean(d) is not below 0). The passing candidate with the largest mean improvement over all
+held-out blocks is accepted; the round repeats until none passes or ``max_effects`` are
 accepted.
 """
 
@@ -156,7 +165,8 @@ def split_segments(segs: list[Segment], n_traj: int, cfg: ResidualConfig) -> tup
     """Seeded split into training and held-out segments, and the held-out resampling units.
 
     With >= 4 trajectories whole trajectories are held out (units = trajectories); otherwise time
-    blocks are (units = blocks). Both lists are capped by random subsampling.
+    blocks are (units = blocks). The held-out list is capped by random subsampling (the training
+    list is subsampled per effect, among the blocks where the effect acts).
     """
     rng = np.random.default_rng(cfg.seed)
     if n_traj >= 4:
@@ -171,12 +181,19 @@ def split_segments(segs: list[Segment], n_traj: int, cfg: ResidualConfig) -> tup
         n_held = min(max(int(round(cfg.heldout_fraction * len(segs))), 1), len(segs) - 1)
         held = [segs[i] for i in sorted(perm[:n_held])]
         train = [segs[i] for i in sorted(perm[n_held:])]
-    if len(train) > cfg.max_train_segments:
-        train = [train[i] for i in sorted(rng.choice(len(train), cfg.max_train_segments, replace=False))]
     if len(held) > cfg.max_heldout_segments:
         held = [held[i] for i in sorted(rng.choice(len(held), cfg.max_heldout_segments, replace=False))]
     units = np.array([s.traj for s in held]) if n_traj >= 4 else np.arange(len(held))
     return train, held, units
+
+
+def reduce_blocks(frames: list[np.ndarray], masks=None) -> np.ndarray:
+    """Mean of each block's per-frame errors over its tracked frames (restricted to ``masks[i]``)."""
+    out = np.empty(len(frames))
+    for i, e in enumerate(frames):
+        m = np.isfinite(e) if masks is None else (np.isfinite(e) & masks[i])
+        out[i] = float(e[m].mean()) if m.any() else np.nan
+    return out
 
 
 class Evaluator:
@@ -201,14 +218,19 @@ class Evaluator:
         pos[bad], rot[bad] = 10.0, math.pi
         return pos, rot
 
-    def errors(self, model, effects, segs) -> np.ndarray:
-        """(S,) scalar error per segment, m."""
-        out = np.empty(len(segs))
-        for i, s in enumerate(segs):
+    def frame_scalar(self, model, effects, segs) -> list[np.ndarray]:
+        """Per block, the (T,) per-frame scalar error |Δp| + ρ·∠, m (untracked frames NaN)."""
+        out = []
+        for s in segs:
             pos, rot = self.frame_errors(model, effects, s)
-            m = s.tracked
-            out[i] = float(np.mean(pos[m] + self.rot_scale * rot[m]))
+            e = pos + self.rot_scale * rot
+            e[~s.tracked] = np.nan
+            out.append(e)
         return out
+
+    def errors(self, model, effects, segs, masks=None) -> np.ndarray:
+        """(S,) mean scalar error per block over its tracked frames (and ``masks[i]`` if given), m."""
+        return reduce_blocks(self.frame_scalar(model, effects, segs), masks)
 
     def by_mode(self, model, effects, segs) -> tuple[dict, dict]:
         """Mean pos/rot error per mode over all frames of ``segs``, plus overall figures."""
@@ -231,17 +253,33 @@ class Evaluator:
         return overall, table
 
 
+def effect_mask(seg: Segment, effect: Effect) -> np.ndarray:
+    """(T,) frames of a block where the effect is judged: frames in its modes; for effects acting at
+    impacts, every frame from the first impact on (the bounce follows the impact frame)."""
+    m = np.isin(seg.mode, [MODES.index(x) for x in effect.modes]) & seg.tracked
+    if "impact" in effect.modes:
+        hit = np.flatnonzero(seg.mode == IMPACT)
+        if len(hit):
+            m[hit[0]:] = True
+    return m & seg.tracked
+
+
+def _acts_on(seg: Segment, effect: Effect, min_frames: int = 3) -> bool:
+    return int(effect_mask(seg, effect).sum()) >= min_frames
+
+
 def _fit(effect: Effect, guess, base_model, base_effects, chosen, ev: Evaluator, train, cfg) -> tuple[tuple, float]:
     """Minimise the training error over the effect's parameters; returns (θ, E_train(θ))."""
     lo, hi = np.array(effect.lower), np.array(effect.upper)
     cache: dict[tuple, float] = {}
+    masks = [effect_mask(sg, effect) for sg in train]
 
     def loss(theta) -> float:
         theta = effect.clip(theta)
         key = tuple(round(x, 12) for x in theta)
         if key not in cache:
             model, sim = apply_effects(base_model, {**chosen, effect.name: theta})
-            cache[key] = float(ev.errors(model, {**base_effects, **sim}, train).mean())
+            cache[key] = float(ev.errors(model, {**base_effects, **sim}, train, masks).mean())
         return cache[key]
 
     guess = effect.clip(guess)
@@ -279,20 +317,27 @@ def _fit(effect: Effect, guess, base_model, base_effects, chosen, ev: Evaluator,
     return best, loss(best)
 
 
+def _bootstrap_bound(d_seg: np.ndarray, units: np.ndarray, cfg: ResidualConfig, rng, upper: bool = False) -> float:
+    """One-sided (1 − α) percentile-bootstrap bound of the mean of per-unit mean improvements."""
+    _, inv = np.unique(units, return_inverse=True)
+    d = np.bincount(inv, weights=d_seg) / np.bincount(inv)
+    idx = rng.integers(0, len(d), size=(cfg.n_bootstrap, len(d)))
+    boots = d[idx].mean(1)
+    return float(np.quantile(boots, 1.0 - cfg.alpha if upper else cfg.alpha))
+
+
 def _decide(before: np.ndarray, after: np.ndarray, units: np.ndarray, cfg: ResidualConfig, rng) -> tuple[bool, str, float]:
     """Acceptance rule on paired held-out errors (see the module docstring)."""
     d_seg = before - after
     mb = float(before.mean())
     rel = float(d_seg.mean() / mb) if mb > 0 else 0.0
-    uniq, inv = np.unique(units, return_inverse=True)
-    d = np.bincount(inv, weights=d_seg) / np.bincount(inv)  # mean improvement per unit
-    idx = rng.integers(0, len(d), size=(cfg.n_bootstrap, len(d)))
-    lower = float(np.quantile(d[idx].mean(1), cfg.alpha))
+    n_units = len(np.unique(units))
+    lower = _bootstrap_bound(d_seg, units, cfg, rng)
     tol = cfg.tie_tol_rel * float(np.median(before))
     n_pos, n_neg = int(np.sum(d_seg > tol)), int(np.sum(d_seg < -tol))
     p_sign = float(binom.sf(n_pos - 1, n_pos + n_neg, 0.5)) if n_pos + n_neg else 1.0
     why = (f"held-out error {rel:+.1%} (relative fall), bootstrap {1 - cfg.alpha:.0%} lower bound "
-           f"{lower:+.2e} m over {len(d)} units, better/worse on {n_pos}/{n_neg} of {len(d_seg)} blocks "
+           f"{lower:+.2e} m over {n_units} units, better/worse on {n_pos}/{n_neg} of {len(d_seg)} blocks "
            f"(sign test p={p_sign:.3f})")
     if rel < cfg.min_rel_improvement:
         return False, f"rejected: fall below {cfg.min_rel_improvement:.0%}; " + why, rel
@@ -347,53 +392,78 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
 
         chosen: dict[str, tuple] = {}
         base_effects = dict(model.effects)
-        cur_model, cur_sim = apply_effects(model, chosen)
-        held_before0 = ev.errors(cur_model, {**base_effects, **cur_sim}, held)
-        held_cur = held_before0
-        train_cur = float(ev.errors(cur_model, {**base_effects, **cur_sim}, train).mean())
+        held_frames0 = ev.frame_scalar(model, base_effects, held)
+        held_before0 = reduce_blocks(held_frames0)
+        held_cur_frames = held_frames0
         final: dict[str, EffectCandidate] = {}
         remaining = list(names)
         n_rounds = min(cfg.max_effects, len(names))
         for rnd in range(n_rounds):
             round_res = []
+            cur_model, cur_sim = apply_effects(model, chosen)
             for ci, name in enumerate(remaining):
                 report((rnd + ci / max(len(remaining), 1)) / max(n_rounds, 1) * 0.9, f"round {rnd + 1}: fitting {name}")
                 eff = REGISTRY[name]
                 sig = float(eff.signature(stats))
                 guess = eff.guess(stats, model)
-                theta, e_train = _fit(eff, guess, model, base_effects, chosen, ev, train, cfg)
+                tr_e = [sg for sg in train if _acts_on(sg, eff)]
+                if len(tr_e) > cfg.max_train_segments:
+                    sub = np.random.default_rng(cfg.seed + 7 * rnd + ci).choice(len(tr_e), cfg.max_train_segments, replace=False)
+                    tr_e = [tr_e[i] for i in sorted(sub)]
+                ho_idx = np.array([i for i, sg in enumerate(held) if _acts_on(sg, eff)], int)
+                if len(tr_e) < 2 or len(ho_idx) < 2:
+                    final[name] = EffectCandidate(
+                        name, {}, float("nan"), float("nan"), False,
+                        f"rejected: too few blocks in its modes {eff.modes} (train {len(tr_e)}, held-out {len(ho_idx)})",
+                        signature=sig, round=rnd,
+                    )
+                    continue
+                tr_masks = [effect_mask(sg, eff) for sg in tr_e]
+                ho_masks = [effect_mask(held[i], eff) for i in ho_idx]
+                train_before = float(ev.errors(cur_model, {**base_effects, **cur_sim}, tr_e, tr_masks).mean())
+                theta, e_train = _fit(eff, guess, model, base_effects, chosen, ev, tr_e, cfg)
                 m_after, s_after = apply_effects(model, {**chosen, name: theta})
-                held_after = ev.errors(m_after, {**base_effects, **s_after}, held)
-                ok, why, rel = _decide(held_cur, held_after, units, cfg, rng)
+                after_frames = ev.frame_scalar(m_after, {**base_effects, **s_after}, held)
+                rel_before = reduce_blocks([held_cur_frames[i] for i in ho_idx], ho_masks)
+                rel_after = reduce_blocks([after_frames[i] for i in ho_idx], ho_masks)
+                all_before, all_after = reduce_blocks(held_cur_frames), reduce_blocks(after_frames)
+                ok, why, rel = _decide(rel_before, rel_after, units[ho_idx], cfg, rng)
+                if ok:
+                    upper = _bootstrap_bound(all_before - all_after, units, cfg, rng, upper=True)
+                    if upper < 0:
+                        ok, why = False, (f"rejected: makes the error over all held-out blocks significantly worse "
+                                          f"({(all_after.mean() - all_before.mean()) * 1e3:+.3f} mm); ") + why.removeprefix("passes; ")
                 if ok and is_negligible(eff, theta, model):
                     ok, why = False, "rejected: fitted value within its resolution of no effect; " + why.removeprefix("passes; ")
                 cand = EffectCandidate(
                     effect=name,
                     params={k: float(v) for k, v in zip(eff.params, theta)},
-                    heldout_error_before=float(held_cur.mean()),
-                    heldout_error_after=float(held_after.mean()),
+                    heldout_error_before=float(rel_before.mean()),
+                    heldout_error_after=float(rel_after.mean()),
                     accepted=False,
                     reason=why,
                     signature=sig,
                     initial_guess={k: float(v) for k, v in zip(eff.params, guess)},
-                    train_error_before=train_cur,
+                    train_error_before=train_before,
                     train_error_after=e_train,
                     round=rnd,
+                    heldout_all_before=float(all_before.mean()),
+                    heldout_all_after=float(all_after.mean()),
+                    blocks={"train": len(tr_e), "heldout": int(len(ho_idx))},
                 )
-                round_res.append((ok, float((held_cur - held_after).mean()), cand, theta, held_after))
+                round_res.append((ok, float(rel_before.mean() - rel_after.mean()), cand, theta, after_frames))
                 final[name] = cand
             passing = [r for r in round_res if r[0]]
             if not passing:
                 break
-            ok, gain, cand, theta, held_after = max(passing, key=lambda r: r[1])
+            ok, gain, cand, theta, after_frames = max(passing, key=lambda r: r[1])
             final[cand.effect] = dataclasses.replace(cand, accepted=True, reason="accepted: " + cand.reason.removeprefix("passes; "))
             for r in round_res:
                 if r[0] and r[2].effect != cand.effect:
                     final[r[2].effect] = dataclasses.replace(r[2], reason=f"passes alone but {cand.effect} explains more; refitted next round")
             chosen[cand.effect] = theta
             remaining.remove(cand.effect)
-            held_cur = held_after
-            train_cur = cand.train_error_after
+            held_cur_frames = after_frames
             if not remaining:
                 break
 
@@ -409,14 +479,14 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
             "residual": stats,
             "rollout_before": table_b,
             "rollout_after": table_a,
-            "segments": {"train": len(train), "heldout": len(held)},
+            "segments": {"train_pool": len(train), "heldout": len(held)},
             "rot_scale_m": rot_scale,
             "rollouts": ev.calls,
             "recording_effects": recording,
         }
         series = {
             "heldout_error_before": held_before0,
-            "heldout_error_after": held_cur,
+            "heldout_error_after": reduce_blocks(held_cur_frames),
         }
         ordered = [final[n] for n in names if n in final]
         report(1.0, "done")
@@ -425,7 +495,7 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
             accepted=tuple(chosen),
             effects=accepted_effects,
             error_before={**overall_b, "scalar_m": float(held_before0.mean())},
-            error_after={**overall_a, "scalar_m": float(held_cur.mean())},
+            error_after={**overall_a, "scalar_m": float(reduce_blocks(held_cur_frames).mean())},
             by_mode=by_mode,
             model=out_model,
             series=series,

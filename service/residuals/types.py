@@ -117,7 +117,7 @@ class ResidualConfig:
 
     @classmethod
     def fast(cls) -> "ResidualConfig":
-        return cls(fit_maxiter=16, n_bootstrap=500, max_train_segments=6, max_heldout_segments=16, max_effects=2)
+        return cls(fit_maxiter=16, n_bootstrap=500, max_train_segments=6, max_heldout_segments=64, max_effects=2)
 
 
 @dataclass(frozen=True)
@@ -133,6 +133,9 @@ class EffectCandidate:
     train_error_before: float = float("nan")
     train_error_after: float = float("nan")
     round: int = 0  # greedy round in which this fit was made (0-based)
+    heldout_all_before: float = float("nan")  # mean over all held-out blocks (the heldout_error_* fields
+    heldout_all_after: float = float("nan")  # are over the held-out blocks where the effect acts)
+    blocks: dict = field(default_factory=dict)  # {"train": n, "heldout": n} blocks used
 
 
 @dataclass(frozen=True)
@@ -160,6 +163,9 @@ class ResidualOutputs:
                     "reason": c.reason,
                     "signature": None if not np.isfinite(c.signature) else c.signature,
                     "round": c.round,
+                    "heldout_all_before": c.heldout_all_before,
+                    "heldout_all_after": c.heldout_all_after,
+                    "blocks": dict(c.blocks),
                 }
                 for c in self.candidates
             ],

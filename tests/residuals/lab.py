@@ -27,20 +27,20 @@ def cube_model(effects=None, friction=(0.15, 0.15)) -> ObjectModel:
 
 
 def toss_starts(n: int, seed: int):
-    """n random toss start states (X_WO0, v0, w0): 5–15 cm above the table, thrown forward and down."""
+    """n random toss start states (X_WO0, v0, w0): centre 11–19 cm above the table, thrown forward and down."""
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(n):
         R = so3_exp(rng.normal(size=3) * 1.0)
-        X = make_X(R, np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), 0.13 + rng.uniform(0.0, 0.1)]))
-        v = np.array([rng.uniform(0.4, 1.0), rng.uniform(-0.3, 0.3), rng.uniform(-0.8, 0.0)])
-        w = rng.normal(size=3) * 4.0
+        X = make_X(R, np.array([rng.uniform(-0.1, 0.1), rng.uniform(-0.1, 0.1), 0.11 + rng.uniform(0.0, 0.08)]))
+        v = np.array([rng.uniform(0.3, 0.7), rng.uniform(-0.2, 0.2), rng.uniform(-0.6, 0.0)])
+        w = rng.normal(size=3) * 3.0
         out.append((X, v, w))
     return out
 
 
 def simulate_tosses(model: ObjectModel, hidden: dict[str, float], n: int = 8, seed: int = 0, fps: float = 148.0,
-                    duration: float = 0.6, noise_m: float = 0.0) -> tuple[ObservedTrajectory, ...]:
+                    duration: float = 0.7, noise_m: float = 0.0) -> tuple[ObservedTrajectory, ...]:
     """Tosses of ``model`` with the hidden effect ``hidden``, sampled at ``fps`` (poses only)."""
     rng = np.random.default_rng(seed + 1000)
     t = np.arange(int(duration * fps)) / fps

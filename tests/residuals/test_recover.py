@@ -16,7 +16,7 @@ from tests.residuals.lab import cube_model, simulate_tosses
 NOISE = 1.5e-4
 
 
-def _loop(hidden, candidates, seed=1, n=10):
+def _loop(hidden, candidates, seed=1, n=20):
     trajs = simulate_tosses(cube_model(), hidden, n=n, seed=seed, noise_m=NOISE)
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=candidates)
     return run(ResidualInputs(cube_model(), trajs, 0.0), cfg)
