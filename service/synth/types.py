@@ -43,6 +43,31 @@ class HiddenEffects:
     friction_object_table: float | None = None  # true object-table friction (declared stays the prior)
     clock_offset: float = 0.0  # s added to robot.csv timestamps relative to the frames
 
+    def __post_init__(self) -> None:
+        def num(name, lo, hi):
+            v = getattr(self, name)
+            if not isinstance(v, (int, float)) or not lo <= float(v) <= hi:
+                raise ValueError(f"effect {name}={v!r}: expected a number in [{lo}, {hi}]")
+
+        def vec(name, n, bound):
+            v = getattr(self, name)
+            try:
+                ok = len(v) == n and all(isinstance(x, (int, float)) and abs(float(x)) <= bound for x in v)
+            except TypeError:
+                ok = False
+            if not ok:
+                raise ValueError(f"effect {name}={v!r}: expected {n} numbers with |value| <= {bound}")
+            object.__setattr__(self, name, tuple(float(x) for x in v))
+
+        num("restitution", 0.0, 1.0)
+        num("linear_damping", 0.0, 50.0)
+        num("angular_damping", 0.0, 50.0)
+        num("clock_offset", -1.0, 1.0)
+        vec("com_offset", 3, 0.05)
+        vec("table_tilt", 2, 0.3)
+        if self.friction_object_table is not None:
+            num("friction_object_table", 0.0, 2.0)
+
     def active(self) -> dict[str, object]:
         """The effects that differ from their 'off' value."""
         off = HiddenEffects()

@@ -79,3 +79,34 @@ def test_sidecar_outside_session_and_not_leaked(noisy_tiny):
     phase = ((r[:, 0] - 0.0432) * 240.0 + 0.5) % 1.0 - 0.5
     assert np.abs(phase).max() < 1e-3
     assert r[0, 0] < 0.0 and r[-1, 0] > 59 / 30.0
+
+
+def test_bad_specs_are_refused(tmp_path):
+    import pytest
+
+    from service.synth import HiddenEffects, SynthSpec, describe, make_session
+
+    with pytest.raises(ValueError, match="com_offset"):
+        HiddenEffects(com_offset=0.01)
+    with pytest.raises(ValueError, match="restitution"):
+        HiddenEffects(restitution=1.5)
+    for bad in (dict(object="teapot"), dict(interaction="throw"), dict(preset="huge"), dict(occlusion="total"), dict(occlusion=0.95)):
+        with pytest.raises(ValueError):
+            make_session(SynthSpec(**bad), tmp_path / "x")
+    assert not (tmp_path / "x").exists()
+    (tmp_path / "busy").mkdir()
+    (tmp_path / "busy" / "keep.txt").write_text("not a session")
+    with pytest.raises(FileExistsError):
+        make_session(SynthSpec(n_frames=3), tmp_path / "busy")
+    d = describe()
+    assert set(d["objects"]) >= {"baking_box", "bottle", "egg", "milk_carton", "oat_carton", "styrofoam", "prism", "l_block"}
+    assert d["presets"]["full"]["width"] == 640 and d["presets"]["tiny"]["n_frames"] == 60
+
+
+def test_progress_reaches_one(tmp_path):
+    from service.synth import SynthSpec, make_session
+
+    seen = []
+    make_session(SynthSpec(n_frames=6, noise=False), tmp_path / "p", progress=lambda f, m: seen.append((f, m)))
+    fr = [f for f, _ in seen]
+    assert fr[-1] == 1.0 and all(0.0 <= f <= 1.0 for f in fr) and fr == sorted(fr)
