@@ -363,6 +363,11 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
     report = progress or (lambda f, m: None)
     model = inputs.model
     has_robot = inputs.robot is not None and any(r is not None for r in inputs.robot)
+    names = list(cfg.candidates) if cfg.candidates is not None else list(REGISTRY)
+    unknown = [n for n in names if n not in REGISTRY]
+    if unknown:
+        raise InvalidInput("ResidualConfig.candidates", f"unknown effects {unknown}; known: {sorted(REGISTRY)}")
+    names = [n for n in names if has_robot or not REGISTRY[n].needs_robot]
     report(0.0, "classifying contact modes")
     modes = [
         classify(model, tr, inputs.table_height, inputs.robot[k] if inputs.robot is not None else None, cfg)
@@ -383,11 +388,6 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
     try:
         rot_scale = cfg.rot_scale_m if cfg.rot_scale_m is not None else object_radius(model)
         ev = Evaluator(simulate, inputs.table_height, rot_scale)
-        names = list(cfg.candidates) if cfg.candidates is not None else list(REGISTRY)
-        unknown = [n for n in names if n not in REGISTRY]
-        if unknown:
-            raise InvalidInput("ResidualConfig.candidates", f"unknown effects {unknown}; known: {sorted(REGISTRY)}")
-        names = [n for n in names if has_robot or not REGISTRY[n].needs_robot]
         rng = np.random.default_rng(cfg.seed + 1)
 
         chosen: dict[str, tuple] = {}

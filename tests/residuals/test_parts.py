@@ -1,0 +1,166 @@
+"""Unit tests of the residual loop's parts: start state, simulator, modes, rule, registry, output, plots."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from service.errors import InvalidInput
+from service.residuals import run
+from service.residuals.effects import REGISTRY, fold_into_model, is_negligible, null_params
+from service.residuals.loop import _decide, start_state
+from service.residuals.modes import FREE, IMPACT, REST, classify, table_gaps
+from service.residuals.plots import plot_heldout_errors, plot_rollout_by_mode, plot_step_residuals
+from service.residuals.simulate import BulletSimulator, gravity_vector
+from service.residuals.types import (
+    EffectCandidate, ObservedTrajectory, ResidualConfig, ResidualInputs, ResidualOutputs, SimRequest,
+)
+from service.transforms import make_X, rotation_angle, so3_exp
+from tests.residuals.lab import SIDE, cube_model
+
+
+def _free_flight(v0, w0, g, h, n, R0=np.eye(3), p0=np.zeros(3)):
+    """Naive semi-implicit Euler reference: v += g h; p += v h; R = R Exp(w h) (torque-free sphere-like)."""
+    X = [make_X(R0, p0)]
+    v, p, R = np.array(v0, float), np.array(p0, float), np.array(R0, float)
+    for _ in range(n - 1):
+        v = v + g * h
+        p = p + v * h
+        R = R @ so3_exp(np.asarray(w0) * h)
+        X.append(make_X(R, p))
+    return np.array(X)
+
+
+def test_start_state_recovers_semi_implicit_velocity():
+    h = 1 / 148
+    g = np.array([0.0, 0.0, -9.81])
+    v0, w0 = np.array([0.7, -0.2, 0.4]), np.array([0.0, 0.0, 3.0])  # spin about a fixed axis
+    X = _free_flight(v0, w0, g, h, 9, R0=so3_exp(np.array([0.0, 0.0, 0.3])))
+    t = np.arange(9) * h
+    X0, v, w = start_state(t, X, 4, h)
+    # velocity that carried frame 3 -> 4 (backward difference at frame 4) = v0 + 4 g h
+    assert np.allclose(v, v0 + 4 * g * h, atol=1e-9)
+    assert np.allclose(w, w0, atol=1e-6)
+    assert np.allclose(X0, X[4], atol=1e-9)
+
+
+def test_simulator_free_flight_matches_reference_and_gravity_effects():
+    model = cube_model()
+    t = np.arange(12) / 148.0
+    X0 = make_X(np.eye(3), np.array([0.0, 0.0, 1.0]))
+    v0 = np.array([0.5, 0.1, 0.0])
+    with BulletSimulator(sim_substep_s=1 / 148.0) as sim:
+        for eff in ({}, {"gravity_scale": 0.9}, {"table_tilt_x": 0.1, "table_tilt_y": -0.05}):
+            X = sim(SimRequest(model, X0, v0, np.zeros(3), t, 0.0, None, eff))
+            ref = _free_flight(v0, np.zeros(3), gravity_vector(eff), 1 / 148.0, len(t), p0=X0[:3, 3])
+            assert np.abs(X[:, :3, 3] - ref[:, :3, 3]).max() < 1e-6
+    g = gravity_vector({"table_tilt_x": 0.1})
+    assert np.isclose(np.linalg.norm(g), 9.81) and g[1] > 0 and abs(g[0]) < 1e-12
+
+
+def test_simulator_rest_height_and_table_offset():
+    model = cube_model()
+    t = np.arange(60) / 148.0
+    X0 = make_X(np.eye(3), np.array([0.0, 0.0, SIDE / 2 + 0.002]))
+    with BulletSimulator() as sim:
+        for off in (0.0, -0.001):
+            X = sim(SimRequest(model, X0, np.zeros(3), np.zeros(3), t, 0.0, None, {"table_offset": off}))
+            assert abs(table_gaps(model, X[-1:], 0.0)[0] - off) < 2e-4
+
+
+def test_service_sim_adapter_agrees_on_free_flight():
+    pytest.importorskip("service.sim")
+    from service.residuals.simulate import service_sim_simulator
+
+    model = cube_model()
+    t = np.arange(15) / 148.0
+    X0 = make_X(so3_exp(np.array([0.2, 0.1, 0.0])), np.array([0.0, 0.0, 0.5]))
+    req = SimRequest(model, X0, np.array([0.4, 0.0, 0.3]), np.array([1.0, 2.0, 0.0]), t, 0.0, None, {"gravity_scale": 0.95})
+    a = service_sim_simulator()(req)
+    with BulletSimulator(sim_substep_s=1 / 480) as sim:
+        b = sim(req)
+    assert np.abs(a[:, :3, 3] - b[:, :3, 3]).max() < 1e-3
+    assert np.degrees(rotation_angle(np.swapaxes(a[:, :3, :3], 1, 2) @ b[:, :3, :3])).max() < 1.0
+
+
+def test_modes_of_a_drop_to_rest():
+    model = cube_model()
+    t = np.arange(120) / 148.0
+    X0 = make_X(np.eye(3), np.array([0.0, 0.0, 0.15]))
+    with BulletSimulator() as sim:
+        X = sim(SimRequest(model, X0, np.zeros(3), np.zeros(3), t, 0.0, None, {}))
+    mode = classify(model, ObservedTrajectory(t, X), 0.0, None, ResidualConfig())
+    assert mode[0] == FREE and mode[-1] == REST
+    first_contact = np.flatnonzero(mode != FREE)[0]
+    assert mode[first_contact] == IMPACT or mode[first_contact - 1] == IMPACT
+    # a free fall from 0.15 m (lowest face 0.0976 m above the table) lasts sqrt(2·0.0976/9.81) s
+    assert abs(t[first_contact] - np.sqrt(2 * (0.15 - SIDE / 2) / 9.81)) < 3 / 148.0
+
+
+def test_acceptance_rule():
+    rng = np.random.default_rng(0)
+    cfg = ResidualConfig()
+    before = rng.uniform(2e-3, 4e-3, 40)
+    units = np.arange(40) // 2
+    ok, why, _ = _decide(before, before * 0.7 + rng.normal(0, 1e-5, 40), units, cfg, rng)
+    assert ok, why
+    # a large mean fall carried by half of the blocks while the other half get worse is not consistent
+    d = np.where(np.arange(40) % 2 == 0, 2e-3, -1e-3)
+    ok, why, _ = _decide(before, before - d, units, cfg, rng)
+    assert not ok and "not consistent" in why
+    # random changes without a mean fall are noise
+    ok, why, _ = _decide(before, before + rng.normal(0, 1e-3, 40), np.arange(40), cfg, rng)
+    assert not ok and why.startswith("rejected")
+    # consistent but tiny improvements fall under the minimum relative fall
+    ok, why, _ = _decide(before, before * 0.99, units, cfg, rng)
+    assert not ok and "fall below" in why
+
+
+def test_registry_is_consistent():
+    model = cube_model()
+    keys = [k for e in REGISTRY.values() for k in e.params]
+    assert len(keys) == len(set(keys))
+    for e in REGISTRY.values():
+        assert len(e.lower) == len(e.upper) == len(e.null) == len(e.params) == len(e.resolution)
+        assert all(lo < hi for lo, hi in zip(e.lower, e.upper))
+        guess = e.guess({}, model)  # no statistics at all: still a valid start inside the bounds
+        assert e.clip(guess) == tuple(float(x) for x in guess)
+        assert is_negligible(e, null_params(e, model), model)
+
+
+def test_fold_into_model_keeps_the_urdf_and_simulator_consistent():
+    model = cube_model(friction=(0.2, 0.3))
+    out, rec = fold_into_model(model, {"friction_object_table": 0.4, "friction_scale_robot": 2.0,
+                                       "restitution": 0.3, "gravity_scale": 0.98}, carried={"restitution"})
+    assert out.friction.object_table == 0.4 and np.isclose(out.friction.object_robot, 0.6)
+    assert out.effects == {"restitution": 0.3}
+    assert rec == {"gravity_scale": 0.98}
+
+
+def test_bad_input_names_the_field():
+    model = cube_model()
+    t = np.arange(10) / 30.0
+    bad = ObservedTrajectory(t, np.tile(np.eye(4), (9, 1, 1)))
+    with pytest.raises(InvalidInput, match=r"trajectories\[0\]"):
+        run(ResidualInputs(model, (bad,), 0.0), ResidualConfig.fast())
+    good = ObservedTrajectory(t, np.tile(np.eye(4), (10, 1, 1)))
+    with pytest.raises(InvalidInput, match="candidates"):
+        run(ResidualInputs(model, (good, good), 0.0), dataclasses.replace(ResidualConfig.fast(), candidates=("nope",)))
+
+
+def test_plots_and_report(tmp_path):
+    rb = {m: {"frames": 10, "pos_err_m": 0.002, "rot_err_deg": 1.0} for m in ("free_flight", "rest")}
+    ra = {m: {"frames": 10, "pos_err_m": 0.001, "rot_err_deg": 0.9} for m in ("free_flight", "rest")}
+    cand = EffectCandidate("gravity_scale", {"gravity_scale": 0.98}, 2e-3, 1e-3, True, "accepted: test")
+    out = ResidualOutputs(
+        (cand,), ("gravity_scale",), {"gravity_scale": 0.98}, {"pos_err_m": 0.002}, {"pos_err_m": 0.001},
+        by_mode={"rollout_before": rb, "rollout_after": ra, "residual": {}},
+        series={"heldout_error_before": np.array([2e-3, 3e-3]), "heldout_error_after": np.array([1e-3, 2e-3])},
+    )
+    for f in (plot_rollout_by_mode, plot_heldout_errors, plot_step_residuals):
+        p = f(out, tmp_path / "p" / f"{f.__name__}.png")
+        assert p.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    rep = out.report()
+    assert rep["accepted"] == ["gravity_scale"]
+    assert rep["candidates"][0]["params"] == {"gravity_scale": 0.98}
+    assert set(rep) >= {"candidates", "accepted", "error_before", "error_after"}
