@@ -164,3 +164,23 @@ def test_plots_and_report(tmp_path):
     assert rep["accepted"] == ["gravity_scale"]
     assert rep["candidates"][0]["params"] == {"gravity_scale": 0.98}
     assert set(rep) >= {"candidates", "accepted", "error_before", "error_after"}
+
+
+def test_simulator_robot_push_and_clock_offset():
+    from service.residuals.types import RobotPath
+
+    model = cube_model(friction=(0.3, 0.3))
+    t = np.arange(40) / 30.0
+    path_t = np.linspace(-1.0, 3.0, 400)
+    # sphere (r 0.0195) sweeps +x through the cube's left face from x = -0.12 at 0.15 m/s, 3 cm high
+    path = RobotPath(path_t, np.stack([-0.12 + 0.15 * np.clip(path_t, 0, None), 0 * path_t, 0.03 + 0 * path_t], 1), None, 0.0195)
+    X0 = make_X(np.eye(3), np.array([0.0, 0.0, SIDE / 2]))
+    with BulletSimulator() as sim:
+        X = sim(SimRequest(model, X0, np.zeros(3), np.zeros(3), t, 0.0, path, {}))
+        Xd = sim(SimRequest(model, X0, np.zeros(3), np.zeros(3), t, 0.0, path, {"clock_offset": 0.2}))
+    # contact at (0.12 - 0.0524 - 0.0195) / 0.15 = 0.32 s; the cube then moves with the sphere
+    x_end = -0.12 + 0.15 * t[-1] + 0.0195 + SIDE / 2
+    assert abs(X[-1, 0, 3] - x_end) < 0.01
+    assert abs(X[-1, 1, 3]) < 0.01 and abs(X[-1, 2, 3] - SIDE / 2) < 0.002
+    # a robot clock 0.2 s ahead pushes 0.2 s earlier: 3 cm further at the end
+    assert abs((Xd[-1, 0, 3] - X[-1, 0, 3]) - 0.15 * 0.2) < 0.005
