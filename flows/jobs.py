@@ -224,7 +224,7 @@ class ProgressBridge:
         self.jobs, self.job_id, self.stage = jobs, job_id, stage
         self.min_interval_s = min_interval_s
         self.also = also
-        self._last = 0.0
+        self._last: float | None = None
         self.fraction = 0.0
         self.message = ""
 
@@ -233,7 +233,7 @@ class ProgressBridge:
         f = 0.0 if f != f else min(max(f, 0.0), 1.0)
         self.fraction, self.message = f, str(message)
         now = time.monotonic()
-        if f < 1.0 and now - self._last < self.min_interval_s:
+        if f < 1.0 and self._last is not None and now - self._last < self.min_interval_s:
             return
         self._last = now
         if self.jobs is not None and self.job_id is not None:

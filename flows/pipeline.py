@@ -48,11 +48,11 @@ class _PrefectProgress:
     """Forwards stage progress to a Prefect progress artifact (best effort, at most once a second)."""
 
     def __init__(self, stage: str):
-        self.stage, self.id, self.last = stage, None, 0.0
+        self.stage, self.id, self.last = stage, None, None
 
     def __call__(self, fraction: float, message: str) -> None:
         now = time.monotonic()
-        if fraction < 1.0 and now - self.last < 1.0:
+        if fraction < 1.0 and self.last is not None and now - self.last < 1.0:
             return
         self.last = now
         from prefect.artifacts import create_progress_artifact, update_progress_artifact
