@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from service.mesh import Mesh
-from service.sdf.types import SdfGrid
+from service.sdf.types import SdfConfig, SdfGrid
 from service.session.types import Session
 
 
@@ -31,10 +31,50 @@ class TrackingOutputs:
 
 @dataclass(frozen=True)
 class TrackingConfig:
-    """Settings of tracking and the visible-geometry SDF. ``fast()`` is the reduced preset used by tests."""
+    """Settings of tracking and the visible-geometry SDF. ``fast()`` is the reduced preset used by tests.
+
+    Distances in metres, angles in degrees where named ``_deg``."""
 
     seed: int = 0
+    # per-frame observation
+    max_points: int = 1200  # object points per frame (depth subsampled to about this many)
+    erode_px: int = 2  # mask erosion before back-projection (edge pixels mix object and background)
+    edge_jump: float = 0.01  # depth jump (m, plus 2 % of depth) to a neighbour that marks a flying pixel
+    table_clearance: float = 0.005  # points lower than this above the table plane are dropped
+    min_points: int = 40  # fewer valid object points: frame not trackable
+    features: bool = True  # ORB features inside the mask for the coarse motion
+    n_features: int = 400
+    # registration
+    icp_iters: int = 12
+    icp_dist0: float = 0.03  # initial correspondence radius
+    icp_dist_min: float = 0.006  # final correspondence radius
+    inlier_dist: float = 0.008  # a point within this distance of the model is an inlier
+    ransac_thr: float = 0.01
+    min_inlier_frac: float = 0.35  # below: lost track
+    max_rmse: float = 0.006  # above: lost track
+    # object model
+    model_voxel: float = 0.003  # voxel of the accumulated keyframe point model
+    kf_angle_deg: float = 10.0  # new keyframe when this far (or kf_dist) from every keyframe
+    kf_dist: float = 0.03
+    kf_new_frac: float = 0.15  # ... or when this fraction of points lies off the model
+    kf_min_inlier_frac: float = 0.5
+    grow_dist: float = 0.015  # points farther than this from the model are not added (mask noise)
+    refine_rounds: int = 2  # leave-one-out keyframe refinement rounds (0: off)
+    final_pass: bool = True  # re-register every frame against the final model
+    final_iters: int = 6
+    # velocities
+    median_kernel: int = 3
+    # visible geometry
+    sdf: SdfConfig = field(default_factory=SdfConfig)
+    sdf_frames: int = 30  # frames whose rays supervise the SDF
+    sdf_stride: int = 3  # pixel stride of the rays
+    sdf_ring_px: int = 30  # dilation of the mask for free-space rays
+    sdf_denoise: float = 0.015  # object rays farther than this from the model are dropped
+    visible_samples: int = 3000  # samples on the convex hull of the visible mesh (plus its vertices)
+    visible_depth_tol: float = 0.01  # |z_render − z_obs| for the visibility check
+    visible_frames: int = 30
 
     @classmethod
     def fast(cls) -> "TrackingConfig":
-        return cls()
+        return cls(max_points=600, icp_iters=10, refine_rounds=1, sdf=SdfConfig.fast(), sdf_frames=10,
+                   sdf_stride=2, sdf_ring_px=8, visible_samples=600, visible_frames=10, n_features=200)

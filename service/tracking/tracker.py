@@ -1,0 +1,365 @@
+"""Model-free 6-DoF object tracking from masked RGBD (a CPU stand-in for BundleSDF's tracker).
+
+Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth, X_WC):
+1. prediction: constant body-frame velocity from the last two tracked poses;
+2. coarse motion: ORB matches inside the mask against the previous tracked frame and the keyframes (their
+   3-D points stored in O), RANSAC over 3-point Kabsch hypotheses gives a candidate X_WO;
+3. refinement: robust point-to-plane ICP of p_W against the object model built so far (keyframe points
+   merged in O on a voxel grid), with the RANSAC inliers as point-to-point terms; from every candidate, the
+   best fit (inlier fraction, then residual) wins;
+4. lost-track test: too few points, inlier fraction < min_inlier_frac or residual > max_rmse. Lost frames are
+   re-localised from the last tracked pose and against all keyframes' features;
+5. keyframes: a well-tracked frame far (angle/translation) from every keyframe or showing new surface adds
+   its points (those within grow_dist of the model, which rejects mask noise) to the model.
+Drift is bounded by (a) frame-to-model rather than frame-to-frame registration, (b) leave-one-out
+refinement of the keyframe poses (each keyframe re-registered to the model of all the others, a small
+bundle adjustment by alternation), and (c) a final pass registering every frame to the refined model.
+Frames never tracked keep tracked=False and get poses interpolated (slerp/lerp) between tracked neighbours.
+O: origin at the centroid of frame 0's object points in W, axes parallel to W (docs/conventions.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from service.tracking.geometry import IcpResult, backproject, icp, pixel_normals, ransac_rigid
+from service.tracking.types import TrackingConfig
+from service.transforms import X_inv, make_X, rotation_angle, so3_exp, so3_log
+
+Progress = Callable[[float, str], None] | None
+
+
+@dataclass
+class FrameObs:
+    """Object observation of one frame, in W."""
+
+    P_W: np.ndarray  # (N,3)
+    N_W: np.ndarray  # (N,3) unit normals
+    kp_W: np.ndarray  # (F,3) 3-D feature points
+    desc: np.ndarray | None  # (F,32) uint8 ORB descriptors
+    n_mask: int
+
+
+@dataclass
+class Keyframe:
+    index: int
+    X_WO: np.ndarray
+    P_O: np.ndarray  # points added to the model, in O (pose-dependent: recomputed on refinement)
+    P_W: np.ndarray
+    N_W: np.ndarray
+    kp_O: np.ndarray
+    desc: np.ndarray | None
+
+
+@dataclass
+class ObjectModel:
+    """Merged keyframe points in O (voxel-averaged) with normals and a KD-tree."""
+
+    voxel: float
+    Q: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    N: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    tree: cKDTree | None = None
+
+    @staticmethod
+    def build(voxel: float, parts: list[tuple[np.ndarray, np.ndarray]]) -> "ObjectModel":
+        P = np.concatenate([p for p, _ in parts])
+        Nn = np.concatenate([n for _, n in parts])
+        key = np.floor(P / voxel).astype(np.int64)
+        _, inv, cnt = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+        inv = inv.reshape(-1)
+        Q = np.zeros((len(cnt), 3))
+        Nm = np.zeros((len(cnt), 3))
+        np.add.at(Q, inv, P)
+        np.add.at(Nm, inv, Nn)
+        Q /= cnt[:, None]
+        Nm /= np.maximum(np.linalg.norm(Nm, axis=1, keepdims=True), 1e-12)
+        return ObjectModel(voxel, Q, Nm, cKDTree(Q))
+
+
+def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> FrameObs:
+    """Object points, normals and features of frame i, in W."""
+    import cv2
+
+    depth = session.depth(i)
+    mask = session.mask(i)
+    K, X_WC = session.K, session.X_WC
+    n_mask = int(mask.sum())
+    m = mask.astype(np.uint8)
+    if cfg.erode_px > 0:
+        k = 2 * cfg.erode_px + 1
+        m = cv2.erode(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k)))
+    ok = (m > 0) & (depth > 0)
+    v, u = np.nonzero(ok)
+    if len(u) > 2 * cfg.max_points:
+        sel = rng.choice(len(u), 2 * cfg.max_points, replace=False)
+        u, v = u[sel], v[sel]
+    # flying pixels: large depth jump to a 4-neighbour; normals from ±2 px differences
+    H, W = depth.shape
+    d0 = depth[v, u]
+    jump = cfg.edge_jump + 0.02 * d0
+    good = np.ones(len(u), bool)
+    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        nb = depth[np.clip(v + dv, 0, H - 1), np.clip(u + du, 0, W - 1)]
+        good &= (nb > 0) & (np.abs(nb - d0) < jump)
+    N_C, nok = pixel_normals(depth, K, u, v, step=2)
+    good &= nok
+    u, v, N_C = u[good], v[good], N_C[good]
+    if len(u) > cfg.max_points:
+        sel = rng.choice(len(u), cfg.max_points, replace=False)
+        u, v, N_C = u[sel], v[sel], N_C[sel]
+    P_C = backproject(depth, K, u, v)
+    R, t = X_WC[:3, :3], X_WC[:3, 3]
+    P_W = P_C @ R.T + t
+    N_W = N_C @ R.T
+    # the table next to the object's base has continuous depth and leaks in with the mask boundary
+    above = P_W[:, 2] > session.table_height + cfg.table_clearance
+    P_W, N_W = P_W[above], N_W[above]
+    kp_W = np.zeros((0, 3))
+    desc = None
+    if cfg.features and n_mask > 0:
+        gray = cv2.cvtColor(session.rgb(i), cv2.COLOR_RGB2GRAY)
+        fm = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) * 255
+        orb = cv2.ORB_create(nfeatures=cfg.n_features, scaleFactor=1.2, nlevels=4, edgeThreshold=9, patchSize=15,
+                             fastThreshold=7)
+        kps, des = orb.detectAndCompute(gray, fm)
+        if des is not None and len(kps):
+            uv = np.array([kp.pt for kp in kps])
+            uu = np.clip(np.round(uv[:, 0]).astype(int), 0, depth.shape[1] - 1)
+            vv = np.clip(np.round(uv[:, 1]).astype(int), 0, depth.shape[0] - 1)
+            good = (depth[vv, uu] > 0) & (m[vv, uu] > 0)
+            if good.sum():
+                Pc = np.stack([(uv[good, 0] - K[0, 2]) / K[0, 0] * depth[vv[good], uu[good]],
+                               (uv[good, 1] - K[1, 2]) / K[1, 1] * depth[vv[good], uu[good]],
+                               depth[vv[good], uu[good]]], 1)
+                kw = Pc @ R.T + t
+                above = kw[:, 2] > session.table_height + cfg.table_clearance
+                kp_W = kw[above]
+                desc = des[good][above]
+    return FrameObs(P_W, N_W, kp_W, desc, n_mask)
+
+
+def _match(desc_a: np.ndarray | None, desc_b: np.ndarray | None, ratio: float = 0.8) -> np.ndarray:
+    """(M,2) index pairs of mutual-ratio-test ORB matches a→b."""
+    import cv2
+
+    if desc_a is None or desc_b is None or len(desc_a) < 2 or len(desc_b) < 2:
+        return np.zeros((0, 2), int)
+    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
+    out = []
+    for pair in bf.knnMatch(desc_a, desc_b, k=2):
+        if len(pair) == 2 and pair[0].distance < ratio * pair[1].distance and pair[0].distance < 64:
+            out.append((pair[0].queryIdx, pair[0].trainIdx))
+    return np.array(out, int).reshape(-1, 2)
+
+
+def _good(r: IcpResult, cfg: TrackingConfig) -> bool:
+    return r.inlier_frac >= cfg.min_inlier_frac and r.rmse <= cfg.max_rmse
+
+
+def _better(a: IcpResult, b: IcpResult | None) -> bool:
+    if b is None:
+        return True
+    return (a.inlier_frac - 0.02 * a.rmse / 0.001) > (b.inlier_frac - 0.02 * b.rmse / 0.001)
+
+
+def _pose_dist(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
+    dR = A[:3, :3].T @ B[:3, :3]
+    return float(np.linalg.norm(A[:3, 3] - B[:3, 3])), float(np.degrees(rotation_angle(dR)))
+
+
+@dataclass
+class TrackResult:
+    X_WO: np.ndarray  # (N,4,4) interpolated where untracked
+    tracked: np.ndarray  # (N,) bool
+    inlier_frac: np.ndarray  # (N,)
+    rmse: np.ndarray  # (N,)
+    model: ObjectModel
+    keyframes: list[Keyframe]
+
+
+def track(session, cfg: TrackingConfig, progress: Progress = None) -> TrackResult:
+    """Track the object through all frames of ``session`` (see module docstring)."""
+    import cv2
+
+    rng = np.random.default_rng(cfg.seed)
+    n_cv = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        return _track(session, cfg, rng, progress)
+    finally:
+        cv2.setNumThreads(n_cv)
+
+
+def _report(progress: Progress, f: float, msg: str) -> None:
+    if progress is not None:
+        progress(float(f), msg)
+
+
+def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Progress) -> TrackResult:
+    N = session.n_frames
+    obs: list[FrameObs] = []
+    X = np.tile(np.eye(4), (N, 1, 1))
+    tracked = np.zeros(N, bool)
+    frac = np.zeros(N)
+    rmse = np.full(N, np.inf)
+
+    o0 = observe(session, 0, cfg, rng)
+    obs.append(o0)
+    if len(o0.P_W) < cfg.min_points:
+        from service.errors import StageFailed
+
+        raise StageFailed("tracking", f"frame 0 has {len(o0.P_W)} valid object depth points (< {cfg.min_points}): "
+                                      "the object must be visible in the first frame")
+    # robust centroid: drop points far from the median (mask noise)
+    med = np.median(o0.P_W, 0)
+    dd = np.linalg.norm(o0.P_W - med, axis=1)
+    keep = dd < 3.0 * np.median(dd) + 0.01
+    X[0] = make_X(np.eye(3), o0.P_W.mean(0))  # O origin: centroid of frame 0's object points (conventions)
+    tracked[0], frac[0], rmse[0] = True, 1.0, 0.0
+    X_OW0 = X_inv(X[0])
+    kf0 = Keyframe(0, X[0].copy(), o0.P_W[keep] @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.P_W[keep], o0.N_W[keep],
+                   o0.kp_W @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.desc)
+    keyframes = [kf0]
+    model = ObjectModel.build(cfg.model_voxel, [(kf0.P_O, o0.N_W[keep] @ X_OW0[:3, :3].T)])
+    last = [0]  # indices of tracked frames
+
+    icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist)
+    for i in range(1, N):
+        o = observe(session, i, cfg, rng)
+        obs.append(o)
+        if len(o.P_W) < cfg.min_points:
+            X[i] = X[last[-1]]
+            continue
+        # candidates: constant-velocity prediction and the last tracked pose
+        a = last[-1]
+        cands = [X[a]]
+        if len(last) >= 2 and last[-2] == a - 1 and a == i - 1:
+            b = last[-2]
+            cands.insert(0, X[a] @ (X_inv(X[b]) @ X[a]))  # X_WO(a) · (body-frame step b→a)
+        # features: previous tracked frame and keyframes
+        fW, fO = _feature_corr(o, obs[a], X[a], keyframes, lost=(a != i - 1))
+        feat_W = feat_O = None
+        if len(fW) >= 6:
+            Xr, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng)
+            if Xr is not None:
+                Xc = X_inv(Xr)  # fO = Xr fW -> Xr = X_OW
+                cands.append(Xc)
+                feat_W, feat_O = fW[inl], fO[inl]
+        best = None
+        for Xc in cands:
+            if best is not None and _good(best, cfg):
+                dt, da = _pose_dist(best.X_WO, Xc)
+                if dt < 0.01 and da < 5.0:
+                    continue  # this start converges to the pose already found
+            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, **icp_kw)
+            if _better(r, best):
+                best = r
+        if a != i - 1 and not _good(best, cfg):
+            # re-localisation: wider search from the last tracked pose and every keyframe pose
+            for kf in keyframes[::-1][:8]:
+                r = icp(o.P_W, kf.X_WO, model.tree, model.Q, model.N, **{**icp_kw, "dist0": 2 * cfg.icp_dist0})
+                if _better(r, best):
+                    best = r
+        X[i] = best.X_WO
+        frac[i], rmse[i] = best.inlier_frac, best.rmse
+        if not _good(best, cfg):
+            X[i] = X[a]
+            continue
+        tracked[i] = True
+        last.append(i)
+        # keyframe?
+        dists = [_pose_dist(kf.X_WO, X[i]) for kf in keyframes]
+        far = min(max(d / cfg.kf_dist, ang / cfg.kf_angle_deg) for d, ang in dists) >= 1.0
+        new_frac = float(np.mean(best.nn_dist > cfg.inlier_dist))
+        if best.inlier_frac >= cfg.kf_min_inlier_frac and (far or new_frac > cfg.kf_new_frac):
+            near = best.nn_dist < cfg.grow_dist
+            X_OW = X_inv(X[i])
+            kf = Keyframe(i, X[i].copy(), o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W[near], o.N_W[near],
+                          o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc)
+            keyframes.append(kf)
+            model = _model_from(keyframes, cfg.model_voxel)
+        if i % 10 == 0:
+            _report(progress, 0.6 * i / N, f"tracking frame {i}/{N}, {len(keyframes)} keyframes")
+
+    if cfg.refine_rounds > 0 and len(keyframes) > 2:
+        _report(progress, 0.62, "refining keyframe poses")
+        for _ in range(cfg.refine_rounds):
+            for k in range(1, len(keyframes)):
+                others = _model_from([kf for j, kf in enumerate(keyframes) if j != k], cfg.model_voxel)
+                kf = keyframes[k]
+                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, **{**icp_kw, "dist0": 0.015})
+                if _good(r, cfg):
+                    kf.X_WO = r.X_WO
+                    X_OW = X_inv(r.X_WO)
+                    kf.P_O = kf.P_W @ X_OW[:3, :3].T + X_OW[:3, 3]
+            model = _model_from(keyframes, cfg.model_voxel)
+    if cfg.final_pass:
+        for i in range(1, N):
+            o = obs[i]
+            if len(o.P_W) < cfg.min_points:
+                continue
+            start = X[i]
+            r = icp(o.P_W, start, model.tree, model.Q, model.N, **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
+            X[i], frac[i], rmse[i] = r.X_WO, r.inlier_frac, r.rmse
+            tracked[i] = _good(r, cfg)
+            if i % 20 == 0:
+                _report(progress, 0.62 + 0.18 * i / N, f"final registration {i}/{N}")
+    X = interpolate_untracked(X, tracked)
+    return TrackResult(X, tracked, frac, rmse, model, keyframes)
+
+
+def _model_from(keyframes: list[Keyframe], voxel: float) -> ObjectModel:
+    parts = []
+    for kf in keyframes:
+        R_OW = kf.X_WO[:3, :3].T
+        parts.append((kf.P_O, kf.N_W @ R_OW.T))
+    return ObjectModel.build(voxel, parts)
+
+
+def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: list[Keyframe], lost: bool
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """3-D correspondences (current point in W, same point in O) from ORB matches."""
+    A, B = [], []
+    if o.desc is None:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    X_OW = X_inv(X_prev)
+    prev_O = prev.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3]
+    m = _match(o.desc, prev.desc)
+    if len(m):
+        A.append(o.kp_W[m[:, 0]])
+        B.append(prev_O[m[:, 1]])
+    kfs = keyframes if lost else keyframes[-3:]
+    for kf in kfs:
+        m = _match(o.desc, kf.desc)
+        if len(m):
+            A.append(o.kp_W[m[:, 0]])
+            B.append(kf.kp_O[m[:, 1]])
+    if not A:
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    return np.concatenate(A), np.concatenate(B)
+
+
+def interpolate_untracked(X_WO: np.ndarray, tracked: np.ndarray) -> np.ndarray:
+    """Poses (N,4,4) with untracked frames replaced by interpolation between the nearest tracked frames
+    (geodesic for rotation, linear for position); before the first / after the last tracked frame: held."""
+    X = X_WO.copy()
+    idx = np.nonzero(tracked)[0]
+    if len(idx) == 0:
+        return X
+    for i in np.nonzero(~tracked)[0]:
+        k = np.searchsorted(idx, i)
+        if k == 0:
+            X[i] = X_WO[idx[0]]
+        elif k == len(idx):
+            X[i] = X_WO[idx[-1]]
+        else:
+            a, b = idx[k - 1], idx[k]
+            s = (i - a) / (b - a)
+            Ra, Rb = X_WO[a, :3, :3], X_WO[b, :3, :3]
+            R = Ra @ so3_exp(s * so3_log(Ra.T @ Rb))
+            X[i] = make_X(R, (1 - s) * X_WO[a, :3, 3] + s * X_WO[b, :3, 3])
+    return X
