@@ -308,7 +308,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("synth", help="make a synthetic session (folder, optionally an archive)")
-    s.add_argument("--object", default="baking_box", help="object kind (see docs/synthetic-lab.md)")
+    s.add_argument("--object", default="baking_box",
+                   help="object kind: baking_box, bottle, egg, milk_carton, oat_carton, styrofoam, prism, l_block, mug "
+                        "(docs/synthetic-lab.md)")
     s.add_argument("--interaction", default="push", choices=["push", "pivot", "topple"])
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--preset", default="tiny", choices=["tiny", "small", "full"])
