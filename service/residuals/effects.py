@@ -246,7 +246,7 @@ register(Effect(
     _fric_table_guess, _sim_keys(("friction_object_table",)),
     description="object-table Coulomb friction replacing the prior",
     resolution=(0.02,),
-    modes=("sliding",),
+    modes=("sliding", "robot_contact"),
 ))
 register(Effect(
     "friction_robot", ("friction_scale_robot",), (0.2,), (5.0,), (1.0,), _fric_robot_sig, _fric_robot_guess,

@@ -164,12 +164,13 @@ def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: Residual
 def split_segments(segs: list[Segment], n_traj: int, cfg: ResidualConfig) -> tuple[list[Segment], list[Segment], np.ndarray]:
     """Seeded split into training and held-out segments, and the held-out resampling units.
 
-    With >= 4 trajectories whole trajectories are held out (units = trajectories); otherwise time
+    With >= 4 trajectories (that have blocks) whole trajectories are held out (units = trajectories); otherwise time
     blocks are (units = blocks). The held-out list is capped by random subsampling (the training
     list is subsampled per effect, among the blocks where the effect acts).
     """
     rng = np.random.default_rng(cfg.seed)
-    if n_traj >= 4:
+    by_traj = len({s.traj for s in segs}) >= 4
+    if by_traj:
         trajs = sorted({s.traj for s in segs})
         perm = rng.permutation(trajs)
         n_held = min(max(int(round(cfg.heldout_fraction * len(trajs))), 1), len(trajs) - 1)
@@ -183,7 +184,7 @@ def split_segments(segs: list[Segment], n_traj: int, cfg: ResidualConfig) -> tup
         train = [segs[i] for i in sorted(perm[n_held:])]
     if len(held) > cfg.max_heldout_segments:
         held = [held[i] for i in sorted(rng.choice(len(held), cfg.max_heldout_segments, replace=False))]
-    units = np.array([s.traj for s in held]) if n_traj >= 4 else np.arange(len(held))
+    units = np.array([s.traj for s in held]) if by_traj else np.arange(len(held))
     return train, held, units
 
 
@@ -375,7 +376,7 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
     ]
     stats = mode_statistics(model, inputs.trajectories, modes, inputs.table_height, inputs.step_residuals, cfg)
     segs = make_segments(inputs, modes, cfg)
-    if len({s.traj for s in segs}) < 2 and len(segs) < 2:
+    if len(segs) < 2:
         raise InvalidInput("trajectories", f"need at least 2 rollout segments of >= {cfg.min_segment_frames} tracked frames, got {len(segs)}")
     train, held, units = split_segments(segs, len(inputs.trajectories), cfg)
 

@@ -57,3 +57,39 @@ def simulate_tosses(model: ObjectModel, hidden: dict[str, float], n: int = 8, se
     finally:
         sim.close()
     return tuple(trajs)
+
+
+def push_session(model: ObjectModel, hidden: dict[str, float], seed: int = 0, fps: float = 30.0, strokes: int = 6,
+                 noise_m: float = 0.0):
+    """One pushing session: the sphere pushes the resting cube in ``strokes`` straight strokes of random
+    heading (approach, push 6 cm at 0.12 m/s, retreat). Returns (trajectory, robot path)."""
+    from service.residuals.types import RobotPath
+
+    rng = np.random.default_rng(seed)
+    r = 0.0195
+    t_knots, p_knots = [0.0], [np.array([-0.25, 0.0, 0.3])]
+    X = make_X(np.eye(3), np.array([0.0, 0.0, SIDE / 2]))
+    sim = BulletSimulator(0.002)
+    centre = np.zeros(2)
+    T_total = strokes * 2.0
+    t = np.arange(int(T_total * fps)) / fps
+    # plan strokes around a nominal cube centre that drifts with the pushes (open-loop plan)
+    for k in range(strokes):
+        ang = rng.uniform(-np.pi, np.pi)
+        d = np.array([np.cos(ang), np.sin(ang)])
+        start = centre - d * (SIDE / 2 + r + 0.03)
+        h = rng.uniform(0.02, 0.04)
+        t0 = 2.0 * k
+        t_knots += [t0 + 0.3, t0 + 0.5, t0 + 1.5, t0 + 1.8]
+        p_knots += [np.r_[start, 0.3], np.r_[start, h], np.r_[start + d * 0.12, h], np.r_[start + d * 0.12, 0.3]]
+        centre = centre + d * 0.06
+    path = RobotPath(np.array(t_knots), np.array(p_knots), None, r)
+    try:
+        Xs = sim(SimRequest(model, X, np.zeros(3), np.zeros(3), t, 0.0, path, dict(hidden)))
+    finally:
+        sim.close()
+    if noise_m > 0:
+        nr = np.random.default_rng(seed + 1000)
+        Xs = Xs.copy()
+        Xs[:, :3, 3] += nr.normal(scale=noise_m, size=(len(t), 3))
+    return ObservedTrajectory(t=t, X_WO=Xs), path
