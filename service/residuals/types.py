@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Protocol
+from typing import Callable, Optional, Protocol
 
 import numpy as np
 
@@ -146,7 +146,8 @@ class ResidualOutputs:
     error_before: dict[str, float]  # {"pos_err_m":…, "rot_err_deg":…}
     error_after: dict[str, float]
     by_mode: dict = field(default_factory=dict)  # residual statistics split by contact mode
-    model: ObjectModel | None = None  # the input model with the accepted effects added
+    # the input model with the accepted effects added (Optional[...]: service.io decodes typing.Union)
+    model: Optional[ObjectModel] = None
     recording_effects: dict[str, float] = field(default_factory=dict)  # accepted, not carried by the model
     series: dict[str, np.ndarray] = field(default_factory=dict)  # per-frame data for the plots
 

@@ -184,3 +184,20 @@ def test_simulator_robot_push_and_clock_offset():
     assert abs(X[-1, 1, 3]) < 0.01 and abs(X[-1, 2, 3] - SIDE / 2) < 0.002
     # a robot clock 0.2 s ahead pushes 0.2 s earlier: 3 cm further at the end
     assert abs((Xd[-1, 0, 3] - X[-1, 0, 3]) - 0.15 * 0.2) < 0.005
+
+
+def test_outputs_survive_the_artifact_store(tmp_path):
+    from service.io import load_value, save_value
+
+    cand = EffectCandidate("restitution", {"restitution": 0.3}, 2e-3, 1e-3, True, "accepted: test",
+                           blocks={"train": 3, "heldout": 4})
+    model = dataclasses.replace(cube_model(), effects={"restitution": 0.3})
+    out = ResidualOutputs((cand,), ("restitution",), {"restitution": 0.3}, {"pos_err_m": 0.002}, {"pos_err_m": 0.001},
+                          by_mode={"residual": {"rest": {"frames": 3, "gap_mean": -0.001}}}, model=model,
+                          series={"heldout_error_before": np.array([1.0, 2.0])}, recording_effects={"gravity_scale": 0.98})
+    save_value(out, tmp_path / "v")
+    back = load_value(ResidualOutputs, tmp_path / "v")
+    assert back.accepted == ("restitution",) and back.candidates[0].params == {"restitution": 0.3}
+    assert back.model.effects == {"restitution": 0.3} and np.allclose(back.model.inertia_O, model.inertia_O)
+    assert back.recording_effects == {"gravity_scale": 0.98}
+    assert np.array_equal(back.series["heldout_error_before"], [1.0, 2.0])
