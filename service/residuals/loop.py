@@ -120,7 +120,7 @@ def _fit_window_ok(mode: np.ndarray) -> bool:
 
 
 def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: ResidualConfig) -> list[Segment]:
-    """Non-overlapping rollout blocks of ``segment_s`` along every trajectory.
+    """Non-overlapping rollout blocks of ``segment_s`` (auto: 0.15 s, 0.6 s with a robot) along every trajectory.
 
     The start state of a block comes from a quadratic fit over ``init_fit_frames`` frames centred on
     its first frame (clipped at the trajectory ends): centring keeps the velocity error of tracking
@@ -130,6 +130,8 @@ def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: Residual
     """
     segs: list[Segment] = []
     kfit = max(2, cfg.init_fit_frames)
+    has_robot = inputs.robot is not None and any(r is not None for r in inputs.robot)
+    seg_s = cfg.segment_s if cfg.segment_s is not None else (0.6 if has_robot else 0.15)
     for k, tr in enumerate(inputs.trajectories):
         t = np.asarray(tr.t, float)
         X = np.asarray(tr.X_WO, float)
@@ -139,7 +141,7 @@ def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: Residual
         mode = modes[k]
         i = min(kfit // 2, max(n - kfit, 0))  # first block starts where a centred fit exists
         while i < n - 1:
-            j = int(np.searchsorted(t, t[i] + cfg.segment_s - 1e-9, side="left")) + 1
+            j = int(np.searchsorted(t, t[i] + seg_s - 1e-9, side="left")) + 1
             j = min(max(j, i + 2), n)
             if n - j < cfg.min_segment_frames // 2:  # absorb a short tail
                 j = n
