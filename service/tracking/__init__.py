@@ -1,1 +1,65 @@
+"""Tracking and visible geometry: X_WO(t) in every frame and the visible SDF/mesh/point set, from a validated
+Session, with no pretrained model and no object model (the role BundleSDF plays in Vysics).
 
+Entry point ``run(TrackingInputs, TrackingConfig, *, progress=None) -> TrackingOutputs``:
+1. tracking (``service.tracking.tracker``): ORB+RANSAC coarse motion, point-to-plane ICP against the keyframe
+   model, keyframe refinement, lost-track detection, interpolation of untracked frames;
+2. velocities (``service.tracking.velocity``): median-filtered backward differences (method-notes §1.3);
+3. visible SDF (``service.sdf.fit_sdf``) from the depth rays of tracked frames, marching cubes -> visible mesh;
+4. visible set V (``service.tracking.visible``): convex-hull points of the mesh that pass a visibility check.
+See docs/tracking.md.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from service.errors import StageFailed
+from service.sdf import extract_mesh, fit_sdf
+from service.tracking.tracker import track
+from service.tracking.types import TrackingConfig, TrackingInputs, TrackingOutputs
+from service.tracking.velocity import velocities
+from service.tracking.visible import pick_frames, sdf_rays, visible_points
+
+__all__ = ["run", "TrackingConfig", "TrackingInputs", "TrackingOutputs"]
+
+
+def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progress=None) -> TrackingOutputs:
+    """Track the object of ``inputs.session`` and reconstruct its visible geometry (frame O)."""
+    s = inputs.session
+    if s.n_frames < 2:
+        raise StageFailed("tracking", f"session {s.name} has {s.n_frames} frame(s); tracking needs at least 2")
+    if s.K.shape != (3, 3) or s.X_WC.shape != (4, 4):
+        raise StageFailed("tracking", f"session {s.name}: K must be 3x3 and X_WC 4x4")
+
+    def rep(a: float, b: float):
+        if progress is None:
+            return None
+        return lambda f, m: progress(a + (b - a) * f, m)
+
+    rng = np.random.default_rng(cfg.seed)
+    tr = track(s, cfg, rep(0.0, 0.6))
+    v, w = velocities(s.frame_times, tr.X_WO, cfg.median_kernel)
+    frames = pick_frames(tr.tracked, cfg.sdf_frames)
+    if progress is not None:
+        progress(0.6, f"visible SDF from {len(frames)} frames")
+    rays = sdf_rays(s, tr.X_WO, frames, tr.model.tree, cfg, rng)
+    grid = fit_sdf(rays, cfg.sdf, progress=rep(0.6, 0.95))
+    mesh = extract_mesh(grid)
+    if mesh.is_empty:
+        raise StageFailed("tracking", "the visible SDF has no zero level set (no object surface reconstructed)")
+    vis_frames = pick_frames(tr.tracked, cfg.visible_frames)
+    V = visible_points(s, tr.X_WO, vis_frames, mesh, cfg, rng)
+    if progress is not None:
+        progress(1.0, f"tracked {int(tr.tracked.sum())}/{s.n_frames} frames, |V| = {len(V)}")
+    return TrackingOutputs(
+        t=np.asarray(s.frame_times, float),
+        X_WO=tr.X_WO,
+        tracked=tr.tracked,
+        v_WO_W=v,
+        w_WO_O=w,
+        sdf=grid,
+        visible_mesh=mesh,
+        visible_points_O=V,
+        frames_lost=int((~tr.tracked).sum()),
+    )

@@ -76,5 +76,5 @@ class TrackingConfig:
 
     @classmethod
     def fast(cls) -> "TrackingConfig":
-        return cls(max_points=600, icp_iters=10, refine_rounds=1, sdf=SdfConfig.fast(), sdf_frames=10,
+        return cls(max_points=600, erode_px=1, min_points=15, icp_iters=10, refine_rounds=1, sdf=SdfConfig.fast(), sdf_frames=10,
                    sdf_stride=2, sdf_ring_px=8, visible_samples=600, visible_frames=10, n_features=200)

@@ -1,0 +1,79 @@
+"""Rays for the visible-geometry SDF and the visible point set V (Vysics §IV-A).
+
+Rays: from up to ``sdf_frames`` tracked frames, object pixels (mask, depth, above the table) whose back-projected
+point lies within ``sdf_denoise`` of the tracked object model (BundleSDF drops rays > 2 cm from its point
+cloud), plus free rays in the dilated ring around the mask; all expressed in O with the tracked X_OC = X_OW X_WC.
+
+V: vertices of the convex hull of the visible mesh plus ``visible_samples`` area-uniform samples on the hull,
+kept when, in at least one checked frame, the point projects inside the object mask with observed depth
+agreeing with its own depth, |z_point − z_obs| < ``visible_depth_tol``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from service.mesh import Mesh
+from service.sdf import RaySet, rays_from_frame
+from service.transforms import X_inv
+
+
+def pick_frames(tracked: np.ndarray, n: int) -> np.ndarray:
+    """Up to n tracked frame indices, evenly spread (always including the first tracked frame)."""
+    idx = np.nonzero(tracked)[0]
+    if len(idx) <= n:
+        return idx
+    return idx[np.unique(np.round(np.linspace(0, len(idx) - 1, n)).astype(int))]
+
+
+def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng: np.random.Generator) -> RaySet:
+    parts = []
+    K = session.K
+    for i in frames:
+        depth = session.depth(int(i))
+        mask = session.mask(int(i))
+        X_OC = X_inv(X_WO[i]) @ session.X_WC
+        grid = np.zeros(mask.shape, bool)
+        grid[::cfg.sdf_stride, ::cfg.sdf_stride] = True
+        v, u = np.nonzero(mask & (depth > 0) & grid)
+        d = depth[v, u]
+        P_C = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], 1)
+        P_O = P_C @ X_OC[:3, :3].T + X_OC[:3, 3]
+        P_W = P_C @ session.X_WC[:3, :3].T + session.X_WC[:3, 3]
+        dist, _ = model_tree.query(P_O, distance_upper_bound=cfg.sdf_denoise)
+        ok = np.isfinite(dist) & (P_W[:, 2] > session.table_height + cfg.table_clearance)
+        keep = np.zeros(mask.shape, bool)
+        keep[v[ok], u[ok]] = True
+        parts.append(rays_from_frame(depth, mask, K, X_OC, stride=cfg.sdf_stride, ring_px=cfg.sdf_ring_px,
+                                     max_object_rays=2000, max_free_rays=1500, keep=keep, rng=rng))
+    return RaySet.concatenate(parts)
+
+
+def visible_points(session, X_WO: np.ndarray, frames: np.ndarray, mesh: Mesh, cfg,
+                   rng: np.random.Generator) -> np.ndarray:
+    """The visible set V (K,3) in O (see module docstring)."""
+    import trimesh
+
+    if mesh.is_empty:
+        return np.zeros((0, 3))
+    hull = mesh.to_trimesh().convex_hull
+    cand = np.asarray(hull.vertices, float)
+    if cfg.visible_samples > 0:
+        samp, _ = trimesh.sample.sample_surface(hull, cfg.visible_samples, seed=int(rng.integers(1 << 31)))
+        cand = np.concatenate([cand, np.asarray(samp, float)])
+    seen = np.zeros(len(cand), bool)
+    K = session.K
+    for i in frames:
+        depth = session.depth(int(i))
+        mask = session.mask(int(i))
+        X_CO = X_inv(session.X_WC) @ X_WO[i]
+        P = cand @ X_CO[:3, :3].T + X_CO[:3, 3]
+        z = P[:, 2]
+        zz = np.where(z > 1e-6, z, 1.0)
+        u = np.round(K[0, 0] * P[:, 0] / zz + K[0, 2]).astype(int)
+        v = np.round(K[1, 1] * P[:, 1] / zz + K[1, 2]).astype(int)
+        inside = (z > 1e-6) & (u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])
+        ui, vi = u[inside], v[inside]
+        ok = mask[vi, ui] & (depth[vi, ui] > 0) & (np.abs(depth[vi, ui] - z[inside]) < cfg.visible_depth_tol)
+        seen[np.nonzero(inside)[0][ok]] = True
+    return cand[seen]
