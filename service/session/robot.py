@@ -22,6 +22,7 @@ REL = "robot.csv"
 EE_COLS = ("ee_x", "ee_y", "ee_z")
 Q_COLS = tuple(f"q{i}" for i in range(1, 8))
 CMD_COLS = ("cmd_x", "cmd_y", "cmd_z")
+MAX_BYTES = 256 << 20  # ~3 million samples of 7 joints: hours at 1 kHz; bounds the parser's memory
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,9 @@ def read_robot_csv(path: Path, joints: str | None) -> RobotLog:
     """Parse and check robot.csv for a session whose ``robot.joints`` is ``joints``."""
     if not path.is_file():
         raise InvalidSession(REL, "missing (required)")
+    size = path.stat().st_size
+    if size > MAX_BYTES:
+        raise InvalidSession(REL, f"{size} bytes, over the {MAX_BYTES}-byte limit for the robot log")
     try:
         text = path.read_text(encoding="utf-8-sig")
     except UnicodeDecodeError:

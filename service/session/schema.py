@@ -20,6 +20,8 @@ FORMAT = "vysics-session/1"
 SUPPORTED_JOINTS = ("franka_panda",)
 DEFAULT_TIP_OFFSET = (0.0, 0.0, 0.1265)  # m in panda_link8; 0.107 + 0.1265 = 0.2335 m from panda_link7
 
+MAX_JSON_BYTES = 16 << 20
+
 _CFG = ConfigDict(extra="allow", strict=True, allow_inf_nan=False)
 
 
@@ -173,10 +175,11 @@ def _format_error(e: ValidationError) -> str:
 
 def parse_session_json(path: Path) -> SessionMeta:
     rel = "session.json"
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise InvalidSession(rel, "missing (required)") from None
+    if not path.is_file():
+        raise InvalidSession(rel, "missing (required)")
+    if path.stat().st_size > MAX_JSON_BYTES:
+        raise InvalidSession(rel, f"over {MAX_JSON_BYTES} bytes; session.json holds metadata only")
+    raw = path.read_bytes()
     try:
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
