@@ -56,8 +56,9 @@ def train(model: ContactModel, tr: Transitions, dt: float, cfg: ContactConfig, *
     w = _weights(cfg)
     gen = torch.Generator().manual_seed(cfg.seed + 1)
     perm_rng = np.random.default_rng(cfg.seed)
-    params = [p for p in model.parameters() if p.requires_grad]
-    opt = torch.optim.Adam(params, lr=cfg.lr)
+    geo = [p for p in model.geometry.parameters() if p.requires_grad]
+    other = [p for n, p in model.named_parameters() if p.requires_grad and not n.startswith("geometry.")]
+    opt = torch.optim.Adam([{"params": geo, "lr": cfg.lr}, {"params": other, "lr": cfg.lr_inertia}])
     S = len(tr)
     V = None if visible_points is None or len(visible_points) == 0 else torch.as_tensor(visible_points, dtype=torch.float64)
     need_hull = tr.ee_p is not None or V is not None

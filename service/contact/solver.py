@@ -38,6 +38,7 @@ class SolverSettings:
     eps_rel: float = 1e-5
     alpha: float = 1.6
     adapt_rho: bool = True
+    rho0: float = 1.0
 
 
 @dataclass
@@ -110,7 +111,7 @@ def solve_cone_qp(
     # work on the active (unconverged) instances only; converged ones are written back to Z
     Pa, qa, za = Ps[active], qs[active], z[active]
     Ba = len(active)
-    rho = torch.full((Ba,), 0.1, dtype=dtype)
+    rho = torch.full((Ba,), settings.rho0, dtype=dtype)
     Kinv = torch.linalg.inv(Pa + rho.view(Ba, 1, 1) * eye)
     ua = torch.zeros(Ba, n, dtype=dtype)
     a = settings.alpha

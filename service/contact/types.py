@@ -90,7 +90,8 @@ class ContactConfig:
     # optimisation
     epochs: int = 300
     batch_size: int = 200
-    lr: float = 2e-3
+    lr: float = 2e-3  # deep support function weights (PLL)
+    lr_inertia: float = 5e-3  # CoM (m per step scale), log-Cholesky moments, friction
     solver_max_iters: int = 100
     solver_eps_rel: float = 1e-4
     warm_start: bool = True

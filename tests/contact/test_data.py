@@ -1,0 +1,91 @@
+"""Trajectory files: validation errors name the file and the rule; tracking outputs split at lost frames."""
+
+import json
+from dataclasses import dataclass
+
+import numpy as np
+import pytest
+
+from service.contact.data import inputs_from_tracking, load_trajectories
+from service.errors import InvalidInput
+from service.mesh import Mesh
+from service.session.types import Friction
+from service.transforms import make_X, so3_exp
+
+
+def _write(tmp_path, states, offsets, meta={"dt_s": 0.01}, **extra):
+    np.savez(tmp_path / "data.npz", states=states, offsets=offsets, **extra)
+    if meta is not None:
+        (tmp_path / "meta.json").write_text(json.dumps(meta))
+    return tmp_path / "data.npz"
+
+
+def _good(n=10):
+    S = np.zeros((n, 13))
+    S[:, 0] = 1
+    return S
+
+
+def test_valid_file_loads_and_flips_quaternion_signs(tmp_path):
+    S = _good(10)
+    S[5:, 0] = -1  # the same rotation with the other sign
+    trajs, ids, dt, _ = load_trajectories(_write(tmp_path, S, np.array([0, 4, 10])))
+    assert dt == 0.01 and list(ids) == [0, 1] and [len(t) for t in trajs] == [4, 6]
+    assert (trajs[1][:, 0] > 0).all() or (trajs[1][:, 0] < 0).all()
+
+
+@pytest.mark.parametrize(
+    "mutate,needle",
+    [
+        (lambda S, o, m: (S[:, :12], o, m), "states must be a float array (N,13)"),
+        (lambda S, o, m: (np.where(np.arange(13) == 5, np.nan, S), o, m), "NaN"),
+        (lambda S, o, m: (S, np.array([0, 11]), m), "offsets must increase"),
+        (lambda S, o, m: (S, np.array([0, 5, 5, 10]), m), "offsets must increase"),
+        (lambda S, o, m: (S * 2, o, m), "unit norm"),
+        (lambda S, o, m: (S, o, {"dt_s": -1}), "dt_s must be a positive number"),
+        (lambda S, o, m: (S, o, None), "meta.json"),
+    ],
+)
+def test_bad_files_raise_invalid_input_naming_file_and_rule(tmp_path, mutate, needle):
+    S, o, m = mutate(_good(10), np.array([0, 10]), {"dt_s": 0.01})
+    p = _write(tmp_path, S, o, meta=m)
+    with pytest.raises(InvalidInput) as e:
+        load_trajectories(p)
+    assert needle in e.value.rule
+    assert e.value.file.endswith(".npz") or e.value.file.endswith("meta.json")
+
+
+@dataclass
+class _Tracking:
+    t: np.ndarray
+    X_WO: np.ndarray
+    tracked: np.ndarray
+    v_WO_W: np.ndarray
+    w_WO_O: np.ndarray
+    visible_mesh: Mesh
+
+
+@dataclass
+class _Session:
+    p_WE: np.ndarray
+    ee_radius: float = 0.0195
+    table_height: float = 0.01
+    friction: Friction = Friction()
+
+
+def test_inputs_from_tracking_splits_at_lost_frames():
+    N = 20
+    t = np.arange(N) / 30
+    X = np.stack([make_X(so3_exp(np.array([0, 0, 0.1 * i])), np.array([0.01 * i, 0, 0.05])) for i in range(N)])
+    tracked = np.ones(N, bool)
+    tracked[8:10] = False
+    pe = np.stack([np.array([0.01 * i, 0.1, 0.05]) for i in range(N)])
+    tro = _Tracking(t, X, tracked, np.zeros((N, 3)), np.zeros((N, 3)), Mesh(np.eye(4)[:, :3], np.zeros((0, 3), np.int64)))
+    inp = inputs_from_tracking(_Session(pe), tro, None, None)
+    assert [len(s) for s in inp.states] == [8, 10]
+    assert inp.mass == 0.37 and not inp.mass_declared
+    assert np.allclose(inp.ee_v_W[1], [0.3, 0, 0])
+    assert np.allclose(inp.states[1][0, 4:7], [0.10, 0, 0.05])
+    assert abs(inp.dt - 1 / 30) < 1e-12 and inp.table_height == 0.01
+    inp2 = inputs_from_tracking(_Session(pe), tro, np.zeros((5, 3)), 0.5)
+    assert inp2.mass == 0.5 and inp2.mass_declared and inp2.visible_points_O.shape == (5, 3)

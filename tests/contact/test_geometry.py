@@ -1,0 +1,87 @@
+"""Deep support function properties, mesh export and closest points on the hull."""
+
+import numpy as np
+import torch
+
+from service.contact.geometry import (
+    HomogeneousICNN,
+    closest_point_on_hull,
+    cube_surface_directions,
+    export_mesh,
+    hull_mesh,
+    outward_directions_to,
+    pretrain_to_points,
+)
+from service.contact.simulate import box_vertices
+
+
+def _net(seed=0, width=48):
+    return HomogeneousICNN(width, 0.1, torch.Generator().manual_seed(seed))
+
+
+def test_homogeneous_convex_and_gradient_is_support_point():
+    net = _net()
+    g = torch.Generator().manual_seed(1)
+    d = torch.randn(300, 3, generator=g, dtype=torch.float64)
+    e = torch.randn(300, 3, generator=g, dtype=torch.float64)
+    f = net.support_value(d)
+    for a in (0.3, 2.0, 7.5):
+        assert torch.allclose(net.support_value(a * d), a * f, rtol=1e-10, atol=1e-14)
+        assert torch.allclose(net(a * d), net(d), atol=1e-12)  # s(d) is degree-0 homogeneous
+    assert (net.support_value(0.5 * (d + e)) <= 0.5 * (f + net.support_value(e)) + 1e-12).all()
+    # analytic gradient equals autograd's
+    dd = d.clone().requires_grad_(True)
+    (gd,) = torch.autograd.grad(net.support_value(dd).sum(), dd)
+    assert torch.allclose(net(d), gd, atol=1e-12)
+    # Euler: f(d) = d·s(d); and s(d) is a maximiser over the other support points
+    assert torch.allclose((net(d) * d).sum(-1), f, atol=1e-12)
+    S = net(e)
+    assert ((d @ S.T) <= f.unsqueeze(-1) + 1e-10).all()
+
+
+def test_support_points_differentiable_in_weights():
+    net = _net()
+    s = net(torch.tensor([[0.0, 0.0, -1.0]], dtype=torch.float64))
+    s.sum().backward()
+    assert net.w.grad is not None and net.w.grad.abs().sum() > 0
+    assert net.A1.grad.abs().sum() > 0 and net.H2.grad.abs().sum() > 0
+
+
+def test_export_mesh_is_closed_and_outward():
+    net = _net(width=32)
+    d = cube_surface_directions(8)
+    assert len(d) == 296
+    mesh, s = export_mesh(net, d)
+    tm = mesh.to_trimesh()
+    assert tm.is_watertight and tm.volume > 0
+    # every support point lies on or inside the hull
+    _, sd = closest_point_on_hull(mesh, s)
+    assert (sd <= 1e-9).all()
+
+
+def test_closest_point_matches_trimesh():
+    import trimesh
+
+    rng = np.random.default_rng(0)
+    mesh = hull_mesh(rng.normal(size=(40, 3)) * [0.05, 0.03, 0.04])
+    p = rng.normal(size=(300, 3)) * 0.06
+    cp, sd = closest_point_on_hull(mesh, p)
+    tm = mesh.to_trimesh()
+    cp_ref, dist_ref, _ = trimesh.proximity.closest_point(tm, p)
+    sd_ref = trimesh.proximity.signed_distance(tm, p)  # trimesh: positive inside
+    assert np.allclose(np.abs(sd), dist_ref, atol=1e-9)
+    assert np.allclose(cp, cp_ref, atol=1e-7)
+    assert np.allclose(sd, -sd_ref, atol=1e-7)
+    _, _, n = outward_directions_to(mesh, p)
+    assert np.allclose(np.linalg.norm(n, axis=-1), 1)
+
+
+def test_pretrain_fits_a_box():
+    net = HomogeneousICNN(64, 0.1, torch.Generator().manual_seed(0))
+    h = np.array([0.04, 0.03, 0.02])
+    torch.manual_seed(0)
+    err = pretrain_to_points(net, box_vertices(h), steps=300)
+    mesh, _ = export_mesh(net, cube_surface_directions(8))
+    half = 0.5 * np.ptp(mesh.vertices, axis=0)
+    assert err < 2e-3
+    assert np.allclose(half, h, rtol=0.15)
