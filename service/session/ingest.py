@@ -22,7 +22,7 @@ import numpy as np
 
 from service.errors import InvalidSession
 from service.session import archive, images, robot
-from service.session.schema import SessionMeta, check_K, parse_session_json, read_cam_K, tip_offset
+from service.session.schema import SessionMeta, parse_session_json, read_cam_K, tip_offset
 from service.session.types import Friction, Session
 from service.settings import Limits
 

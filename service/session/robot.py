@@ -10,7 +10,6 @@ half a frame of the video is accepted; a larger gap is an error.
 from __future__ import annotations
 
 import csv
-import math
 from dataclasses import dataclass
 from pathlib import Path
 

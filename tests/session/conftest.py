@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import io
 import json
-import os
 import tarfile
 import zipfile
 from dataclasses import dataclass, field
@@ -179,4 +178,4 @@ def tree(p: Path) -> list[str]:
     return sorted(str(x.relative_to(p)) for x in p.rglob("*")) if p.exists() else []
 
 
-__all__ = ["DELETE", "Spec", "write_session", "pack", "add_tar_member", "render", "look_at", "K", "W", "H", "tree", "os"]
+__all__ = ["DELETE", "Spec", "write_session", "pack", "add_tar_member", "render", "look_at", "K", "W", "H", "tree"]

@@ -3,7 +3,6 @@ and leave the destination absent and nothing else touched."""
 
 from __future__ import annotations
 
-import io
 import json
 import os
 import stat
@@ -566,10 +565,6 @@ def test_no_table_plane_found(tmp_path):
         ingest(src, tmp_path / "d")
     assert ei.value.file == "depth/" and "no horizontal table plane" in ei.value.rule
     assert not (tmp_path / "d").exists()
-
-
-def _unused():  # keep imports used by builders visible to linters
-    return io, os
 
 
 def test_stray_file_next_to_top_folder(tmp_path):
