@@ -62,7 +62,7 @@ class Spec:
     box: float = 0.12
     noise: float = 0.0
     rgb_ext: str = ".jpg"
-    meta: dict = field(default_factory=dict)  # merged into session.json (None values delete keys)
+    meta: dict = field(default_factory=dict)  # merged into session.json (DELETE removes a key)
     robot_rows: list | None = None  # replaces robot.csv rows (list of lists, first = header)
 
 
@@ -84,6 +84,9 @@ def base_meta(spec: Spec) -> dict:
     }
 
 
+DELETE = object()  # in Spec.meta: remove this key from session.json
+
+
 def _merge(d: dict, patch: dict) -> dict:
     for k, v in patch.items():
         if isinstance(v, dict) and isinstance(d.get(k), dict):
@@ -94,8 +97,6 @@ def _merge(d: dict, patch: dict) -> dict:
             d[k] = v
     return d
 
-
-DELETE = object()
 
 
 def robot_rows_default(n: int, fps: float) -> list[list]:
