@@ -183,7 +183,8 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
         "object": {"mass": obj.mass if spec.declare_mass else None},
     }
     (tmp / "session.json").write_text(json.dumps(session, indent=2) + "\n")
-    robot_rows = np.c_[rec.robot_t + eff.clock_offset, rec.robot_p, rec.robot_cmd]
+    robot_p = _noise.noisy_robot(rec.robot_p, rng_noise) if spec.noise else rec.robot_p
+    robot_rows = np.c_[rec.robot_t + eff.clock_offset, robot_p, rec.robot_cmd]
     (tmp / "robot.csv").write_text(_csv("t,ee_x,ee_y,ee_z,cmd_x,cmd_y,cmd_z", robot_rows, "%.6f"))
     Mesh.from_trimesh(obj.mesh).save_obj(tmp / "ground_truth" / "mesh.obj")
     q = mat_to_quat(rec.X_WM[:, :3, :3])

@@ -4,11 +4,14 @@ Depth (metres along the optical axis, 0 = no reading):
 - axial noise sigma(z) = 0.0008 + 0.0018 z^2 m (about 2 mm at 0.8 m, D4xx-like growth with z^2), split into
   an independent per-pixel part (80 %) and a smooth part (20 %, a 1/8-resolution Gaussian field
   upsampled bilinearly) that mimics the correlated stereo-matching error;
-- dropout at depth discontinuities: pixels within 1 px of a jump > 1.5 cm are lost with probability 0.6;
+- dropout at depth discontinuities: pixels within 1 px of a jump > 1.5 cm are lost with probability 0.6,
+  and 30 % of the remaining ones become *flying pixels* (a random blend of the nearest and farthest
+  depth of their 3x3 neighbourhood);
 - random dropout of 0.3 % of the pixels and a few small holes;
 - quantisation to the depth unit happens when the PNG is written (value = round(z / depth_scale)).
 Mask: at a few random boundary places a 7x7 patch is dilated or eroded by one pixel.
 Colour: additive Gaussian noise, sigma 2 grey levels.
+Robot: the measured sphere centre gets Gaussian noise of 0.2 mm per axis (commands stay exact).
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ DEPTH_SIGMA_B = 0.0018  # 1/m   sigma = a + b z^2
 EDGE_JUMP = 0.015  # m
 EDGE_DROP_P = 0.6
 RANDOM_DROP_P = 0.003
+FLYING_P = 0.3
+ROBOT_SIGMA = 0.0002  # m
 
 
 def depth_sigma(z: np.ndarray) -> np.ndarray:
@@ -48,6 +53,13 @@ def noisy_depth(z: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     jump = cv2.dilate(jump.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     r = rng.random((h, w), dtype=np.float32)
     drop = (jump & (r < EDGE_DROP_P)) | (r > 1.0 - RANDOM_DROP_P)
+    # flying pixels: blend of the near and far surface at the remaining edge pixels
+    zf = np.where(valid, z, np.inf).astype(np.float32)
+    near = cv2.erode(zf, np.ones((3, 3), np.uint8))
+    far = cv2.dilate(np.where(valid, z, 0.0).astype(np.float32), np.ones((3, 3), np.uint8))
+    fly = jump & ~drop & (r < EDGE_DROP_P + FLYING_P * (1.0 - EDGE_DROP_P)) & np.isfinite(near) & (far > 0)
+    a = rng.random((h, w), dtype=np.float32)
+    out = np.where(fly, np.where(fly, near, 0.0) + a * (far - np.where(fly, near, 0.0)), out)
     for _ in range(int(rng.integers(0, 4))):
         cy, cx = int(rng.integers(0, h)), int(rng.integers(0, w))
         r = int(rng.integers(1, max(2, w // 100) + 2))
@@ -79,3 +91,8 @@ def noisy_mask(mask: np.ndarray, rng: np.random.Generator, n_patches: int = 4) -
 def noisy_rgb(rgb: np.ndarray, rng: np.random.Generator, sigma: float = 2.0) -> np.ndarray:
     n = rng.standard_normal(rgb.shape, dtype=np.float32) * np.float32(sigma)
     return np.clip(rgb.astype(np.float32) + n, 0, 255).astype(np.uint8)
+
+
+def noisy_robot(p: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """(M,3) measured sphere centres + Gaussian noise of ROBOT_SIGMA per axis."""
+    return p + rng.normal(0.0, ROBOT_SIGMA, p.shape)

@@ -104,3 +104,31 @@ def test_sidecar_true_values(noisy_tiny):
     assert np.allclose(I, I.T) and np.all(np.linalg.eigvalsh(I) > 0)
     assert t["restitution"] == 0.3 and t["clock_offset"] == 0.0432
     assert side["object"]["kind"] == "bottle"
+
+
+def test_noise_model_statistics(clean_tiny, tmp_path):
+    """Same seed with noise on: same motion; depth differences follow sigma(z); dropouts in range."""
+    import cv2
+
+    from service.synth import SynthSpec, make_session
+    from service.synth.noise import depth_sigma
+
+    spec, clean = clean_tiny
+    noisy = make_session(SynthSpec(**{**spec.__dict__, "noise": True}), tmp_path / "noisy")
+    a = (clean.session_dir / "ground_truth" / "poses.csv").read_bytes()
+    assert a == (noisy.session_dir / "ground_truth" / "poses.csv").read_bytes()
+    res, zs, drops = [], [], []
+    for i in (0, 10, 20, 30, 40, 50):
+        z0 = cv2.imread(str(clean.session_dir / "depth" / f"{i:06d}.png"), cv2.IMREAD_UNCHANGED).astype(float) / 1000
+        z1 = cv2.imread(str(noisy.session_dir / "depth" / f"{i:06d}.png"), cv2.IMREAD_UNCHANGED).astype(float) / 1000
+        flat = (z0 > 0) & (cv2.morphologyEx(z0.astype(np.float32), cv2.MORPH_GRADIENT, np.ones((3, 3), np.uint8)) < 0.012)
+        ok = flat & (z1 > 0)
+        res.append((z1 - z0)[ok] / depth_sigma(z0[ok]))
+        drops.append(1.0 - ok.sum() / flat.sum())
+    r = np.concatenate(res)
+    assert len(r) > 20000
+    assert abs(np.std(r) - 1.0) < 0.2 and abs(np.mean(r)) < 0.2  # 20 % of the variance is spatially correlated
+    assert 0.001 < np.mean(drops) < 0.05
+    rc = np.loadtxt(clean.session_dir / "robot.csv", delimiter=",", skiprows=1)
+    rn = np.loadtxt(noisy.session_dir / "robot.csv", delimiter=",", skiprows=1)
+    assert np.allclose(rc[:, 4:], rn[:, 4:]) and 1e-4 < np.std(rn[:, 1:4] - rc[:, 1:4]) < 4e-4
