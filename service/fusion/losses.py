@@ -42,6 +42,25 @@ def hyperplane_loss(query_fn: QueryFn, q: torch.Tensor, bound: torch.Tensor, tau
     return (torch.clamp((query_fn(q) - bound) / tau, max=0.0) ** 2).mean()
 
 
+def convexity_pairs(
+    S1: torch.Tensor, s1: torch.Tensor, s2: torch.Tensor, l2: torch.Tensor, t: torch.Tensor, eps: float
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Interpolated points x (K,3) and upper bounds (K,) of the pairs whose S(s₁) (M,) is within ε.
+
+    x = t s₁ + (1 − t) s₂, bound = t S(s₁) + (1 − t) l₂ (S(s₁) detached)."""
+    valid = S1.detach().abs() <= eps
+    s1, s2, l2, t, S1 = s1[valid], s2[valid], l2[valid], t[valid], S1.detach()[valid]
+    x = t[:, None] * s1 + (1.0 - t[:, None]) * s2
+    return x, t * S1 + (1.0 - t) * l2
+
+
+def convexity_hinge(S_x: torch.Tensor, bound: torch.Tensor, tau: float) -> torch.Tensor:
+    """mean max(0, S(x) − bound)/τ over (K,) pairs (0 when K = 0)."""
+    if len(S_x) == 0:
+        return torch.zeros(())
+    return torch.relu((S_x - bound) / tau).mean()
+
+
 def convexity_loss(
     query_fn: QueryFn,
     s1: torch.Tensor,
@@ -57,13 +76,10 @@ def convexity_loss(
         return torch.zeros(())
     with torch.no_grad():
         S1 = query_fn(s1)
-    valid = S1.abs() <= eps
-    if not bool(valid.any()):
+    x, bound = convexity_pairs(S1, s1, s2, l2, t, eps)
+    if len(x) == 0:
         return torch.zeros(())
-    s1, s2, l2, t, S1 = s1[valid], s2[valid], l2[valid], t[valid], S1[valid]
-    x = t[:, None] * s1 + (1.0 - t[:, None]) * s2
-    bound = t * S1 + (1.0 - t) * l2
-    return torch.relu((query_fn(x) - bound) / tau).mean()
+    return convexity_hinge(query_fn(x), bound, tau)
 
 
 class PhysibleLosses:
@@ -101,24 +117,49 @@ class PhysibleLosses:
         return torch.randint(0, n_pool, (n,), generator=self.gen)
 
     def __call__(self, query_fn: QueryFn, step: int) -> torch.Tensor:
+        """Weighted sum of the three terms on this step's subsets; one differentiable grid query for
+        all of them (each query's backward scatters into the whole grid, so one is cheaper than three)."""
         w = self.w
-        total = torch.zeros(())
-        parts = {}
-        if w.sp > 0 and len(self.x_sp):
+        pts, n = [], {}
+        use_sp = w.sp > 0 and len(self.x_sp) > 0
+        use_hc = w.hc > 0 and len(self.q_hc) > 0
+        use_cvx = w.cvx > 0 and len(self.x_sp) > 0 and len(self.s_vis) > 0
+        if use_sp:
             i = self._pick(len(self.x_sp), w.n_sp)
-            parts["sp"] = support_point_loss(query_fn, self.x_sp[i], self.l_sp[i], self.tau)
-            total = total + w.sp * parts["sp"]
-        if w.hc > 0 and len(self.q_hc):
+            pts.append(self.x_sp[i])
+            l_sp = self.l_sp[i]
+            n["sp"] = len(i)
+        if use_hc:
             i = self._pick(len(self.q_hc), w.n_hc)
-            parts["hc"] = hyperplane_loss(query_fn, self.q_hc[i], self.b_hc[i], self.tau)
-            total = total + w.hc * parts["hc"]
-        if w.cvx > 0 and len(self.x_sp) and len(self.s_vis):
+            pts.append(self.q_hc[i])
+            b_hc = self.b_hc[i]
+            n["hc"] = len(i)
+        if use_cvx:
             i1 = torch.randint(0, len(self.s_vis), (w.n_cvx,), generator=self.gen)
             i2 = torch.randint(0, len(self.x_sp), (w.n_cvx,), generator=self.gen)
             t = torch.rand(w.n_cvx, generator=self.gen)
-            parts["cvx"] = convexity_loss(
-                query_fn, self.s_vis[i1], self.x_sp[i2], self.l_sp[i2], t, self.tau, w.eps_cvx
-            )
-            total = total + w.cvx * parts["cvx"]
+            s1 = self.s_vis[i1]
+            with torch.no_grad():
+                S1 = query_fn(s1)
+            x_cvx, bound = convexity_pairs(S1, s1, self.x_sp[i2], self.l_sp[i2], t, w.eps_cvx)
+            pts.append(x_cvx)
+            n["cvx"] = len(x_cvx)
+        if not pts:
+            self.last = {}
+            return torch.zeros(())
+        S = query_fn(torch.cat(pts))
+        parts, a = {}, 0
+        for key in ("sp", "hc", "cvx"):
+            if key not in n:
+                continue
+            Sk = S[a:a + n[key]]
+            a += n[key]
+            if key == "sp":
+                parts[key] = (((Sk - l_sp) / self.tau) ** 2).mean()
+            elif key == "hc":
+                parts[key] = (torch.clamp((Sk - b_hc) / self.tau, max=0.0) ** 2).mean()
+            else:
+                parts[key] = convexity_hinge(Sk, bound, self.tau)
+        total = sum(getattr(w, k) * v for k, v in parts.items())
         self.last = {k: float(v.detach()) for k, v in parts.items()}
         return total

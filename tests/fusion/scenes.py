@@ -121,7 +121,7 @@ def write_box_session(root, n_frames: int = 6, width: int = 96, height: int = 72
     root = Path(root)
     (root / "depth").mkdir(parents=True, exist_ok=True)
     (root / "masks").mkdir(parents=True, exist_ok=True)
-    f = 90.0
+    f = 0.94 * width  # the same field of view at any image size
     K = np.array([[f, 0, (width - 1) / 2], [0, f, (height - 1) / 2], [0, 0, 1.0]])
     X_WC = look_at(np.array([0.42, 0.01, 0.40]), target=np.array([0.0, 0.0, HALF[2]]))
     X_WO = np.repeat(np.eye(4)[None], n_frames, 0)

@@ -148,3 +148,26 @@ def test_physible_losses_combines_and_is_seeded():
     assert PhysibleLosses(x, l, q, b, s_vis, w, TAU)(sphere, 0).item() < 1e-6
     empty = PhysibleLosses(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)), np.zeros(0), s_vis, w, TAU)
     assert empty(small, 0).item() == 0.0
+
+
+def test_physible_losses_parts_equal_the_pure_functions():
+    """The fused single-query path gives the same terms as the separate pure functions."""
+    rng = np.random.default_rng(7)
+    P, N = sphere_contacts(3, rng)
+    ext = SampleExtents(ray_n_in=10, ray_n_out=10, ray_n_far=5, hc_n_in=10, hc_n_near=5, hc_n_far=5)
+    x, l = ray_samples(P, N, ext, rng)
+    q, b = hyperplane_samples(P, N, ext, rng)
+    d = rng.normal(size=(50, 3))
+    s_vis = R * d / np.linalg.norm(d, axis=1, keepdims=True)
+    w = LossWeights(n_sp=1000, n_hc=1000, n_cvx=300)  # pools smaller than n: sp/hc use every sample
+    fn = lambda p: two_spheres(p * 1.3)  # noqa: E731  (non-convex, nothing exactly zero)
+    losses = PhysibleLosses(x, l, q, b, s_vis, w, TAU, seed=11)
+    losses(fn, 0)
+    assert losses.last["sp"] == pytest.approx(support_point_loss(fn, t32(x), t32(l), TAU).item(), rel=1e-5)
+    assert losses.last["hc"] == pytest.approx(hyperplane_loss(fn, t32(q), t32(b), TAU).item(), rel=1e-5)
+    g = torch.Generator().manual_seed(11)
+    i1 = torch.randint(0, len(s_vis), (300,), generator=g)
+    i2 = torch.randint(0, len(x), (300,), generator=g)
+    t = torch.rand(300, generator=g)
+    ref = convexity_loss(fn, t32(s_vis)[i1], t32(x)[i2], t32(l)[i2], t, TAU, w.eps_cvx).item()
+    assert ref > 0 and losses.last["cvx"] == pytest.approx(ref, rel=1e-5)
