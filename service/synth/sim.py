@@ -10,13 +10,15 @@ Model
   by product, so object = (mu 1, e), table = (mu_OT, 1), sphere = (mu_OR, 1) give the pair values
   mu_OT, mu_OR and restitution e. Bullet pads hull shapes by a 1 mm collision margin; the table's
   collision box is lowered and the sphere's collision radius shrunk by it, so the true surfaces touch.
-  A small rolling resistance rho (m, torque rho N against rolling, default 0.5 mm as for plastic on a
-  rubber mat) keeps round objects from rolling forever; it is in the sidecar's true values.
+  A small rolling resistance rho (m, torque rho N against rolling; SynthSpec default 0.5 mm, as for
+  plastic on a rubber mat) keeps round objects from rolling forever; it is in the sidecar's true values.
 - End effector: a dynamic sphere (radius 0.0195 m, mass m_E) that does not collide with the table, its
   spin reset every step (rigidly held), driven by a Cartesian impedance law with gravity compensation:
       F = K (x_cmd - x) - D v + m_E (-g),   K = 1500 N/m, D = 2 sqrt(K m_E)  (critically damped).
   ``x_cmd(t)`` is a piecewise cubic (smooth-step) path of strokes planned from the current object pose
-  (push low / pivot high and return / topple high and lift away), as a tele-operator would.
+  (push low / pivot high and return / topple high and lift away), as a tele-operator would. Tipping
+  about the front edge needs a push F > m g s_front / h_c while the table holds at most mu_OT m g, so
+  an object with mu_OT h_c < s_front is pushed instead (recorded as a push stroke).
 - Semi-implicit Euler at ``physics_hz`` (240 Hz default); the object state is sampled at the frame
   times i / fps, the robot at every physics step.
 Hidden viscous damping b (1/s) is applied as explicit forces, F = -m b_lin v at the CoM and
@@ -397,7 +399,6 @@ def simulate(
         for _ in range(int(0.1 * physics_hz)):
             step_robot(start)
             pb.stepSimulation(physicsClientId=cid)
-        first = False
 
         frame_t = np.arange(n_frames) / fps
         X_frames = np.zeros((n_frames, 4, 4))
@@ -412,8 +413,7 @@ def simulate(
         for j, k in enumerate(ks):
             t = k * dt
             while path.t_end <= t + 1e-9 and path.t_end < duration:
-                planner.plan(path, X_WM_now(), first=first)
-                first = False
+                planner.plan(path, X_WM_now(), first=False)
             cmd = path(t)
             x, _ = pb.getBasePositionAndOrientation(sphere, physicsClientId=cid)
             robot_p[j] = x
