@@ -208,7 +208,8 @@ def create_app(settings: ApiSettings | None = None, *, launcher: Launcher | None
         job = job_or_404(session_id, jobs)
         return SessionStatus(
             id=job["id"], state=job["state"], session=SessionInfo(**job["session"]), preset=job.get("preset"),
-            stages=job["stages"], error=job.get("error"), created=job.get("created"), updated=job.get("updated"),
+            stages=job["stages"], error=job.get("error"), warnings=job.get("warnings") or [],
+            created=job.get("created"), updated=job.get("updated"),
             started=job.get("started"), finished=job.get("finished"), links=_links(request, job["id"]))
 
     def _ready(job: dict) -> Path:

@@ -52,6 +52,8 @@ class SessionStatus(BaseModel):
     preset: str | None = None
     stages: dict[str, StageStatus]
     error: ErrorInfo | None = None
+    warnings: list[ErrorInfo] = Field(default_factory=list,
+                                      description="measuring stages that failed without failing the job")
     created: str | None = None
     updated: str | None = None
     started: str | None = None

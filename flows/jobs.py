@@ -48,6 +48,7 @@ def new_job(job_id: str, *, session_sha256: str, name: str | None, frames: int |
         "stages": {s: {"state": PENDING, "fraction": 0.0, "message": "", "cached": False, "seconds": None}
                    for s in STAGE_ORDER},
         "error": None,
+        "warnings": [],  # failures of measuring stages (evaluation, residuals) that did not fail the job
         "bundle": None,
         "runner": None,
         "created": now_iso(),

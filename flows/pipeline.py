@@ -23,7 +23,7 @@ from prefect.cache_policies import NONE  # noqa: E402
 
 from flows import jobs as J  # noqa: E402
 from flows.sessions import is_sha, load_stored, store_upload  # noqa: E402
-from flows.stages import NOT_AVAILABLE, PIPELINE, STAGES, StageContext, run_cached  # noqa: E402
+from flows.stages import NOT_AVAILABLE, PIPELINE, STAGES, StageContext, run_cached, select_stages  # noqa: E402
 from service.config import PipelineConfig  # noqa: E402
 from service.errors import InvalidSession, StageFailed  # noqa: E402
 from service.settings import Settings, get_settings  # noqa: E402
@@ -160,6 +160,10 @@ def _ensure_job(jobs: J.JobStore, job_id: str, st: dict, cfg: PipelineConfig) ->
     def fn(j: dict) -> None:
         j["state"] = J.RUNNING
         j["started"] = j.get("started") or J.now_iso()
+        j["warnings"] = []
+        for name, stage in j["stages"].items():  # a new run: forget the stages of the previous one
+            if name != "ingest":
+                stage.update(state=J.PENDING, fraction=0.0, message="", cached=False, seconds=None)
         j["session"] = {"sha256": st["sha256"], "name": st["name"], "frames": st["frames"]}
         j["error"] = None
 
@@ -169,13 +173,16 @@ def _ensure_job(jobs: J.JobStore, job_id: str, st: dict, cfg: PipelineConfig) ->
 @flow(name=FLOW_NAME, log_prints=True, retries=0)
 def process_session(session: str, data_dir: str | None = None, preset: str | None = None,
                     config: dict[str, Any] | None = None, job_id: str | None = None,
-                    out_dir: str | None = None) -> dict:
+                    out_dir: str | None = None, stages: str | list[str] | None = None) -> dict:
     """Process one session end to end and return ``{job_id, sha256, bundle_zip, bundle_dir, stages}``.
 
     ``session``: a session folder or archive path, or the sha256 of a stored session. ``preset``:
     ``default`` | ``fast`` (default ``VYSICS_PRESET``); ``config``: per-stage overrides (PipelineConfig JSON).
     ``job_id``: the job to report into (default: the session's sha256). ``out_dir``: also copy the bundle
-    folder there (command line).
+    folder there (command line). ``stages``: which science stages to run (``"all"``, ``"none"``, ``"a,b"`` or a
+    list; default ``VYSICS_STAGES`` or all); the others are skipped with that reason.
+    A required stage that fails fails the job; a measuring stage (evaluation, residuals) that fails leaves
+    its report section empty with the reason, and the job completes.
     """
     settings = _settings(data_dir)
     data_dir = str(settings.data_dir)
@@ -183,6 +190,7 @@ def process_session(session: str, data_dir: str | None = None, preset: str | Non
     config["preset"] = preset or config.get("preset") or settings.preset
     cfg = PipelineConfig.from_dict(config)
     config = cfg.to_dict()
+    selected = select_stages(stages)
     jobs = J.JobStore(settings.jobs_dir)
     current = "ingest"
     try:
@@ -199,13 +207,28 @@ def process_session(session: str, data_dir: str | None = None, preset: str | Non
         for spec in PIPELINE:
             current = spec.name
             missing = [r for r in spec.requires if r not in refs]
-            reason = (f"needs {missing[0]} ({reasons.get(missing[0], NOT_AVAILABLE)})" if missing
-                      else spec.unavailable_reason())
+            if selected is not None and spec.name not in selected:
+                reason = "not selected (stages setting)"
+            elif missing:
+                reason = f"needs {missing[0]} ({reasons.get(missing[0], NOT_AVAILABLE)})"
+            else:
+                reason = spec.unavailable_reason()
             if reason:
                 reasons[spec.name] = reason
                 jobs.stage(job_id, spec.name, state=J.SKIPPED, fraction=0.0, message=reason)
                 continue
-            res = stage_task(spec.name, refs, st["sha256"], data_dir, job_id, config)
+            try:
+                res = stage_task(spec.name, refs, st["sha256"], data_dir, job_id, config)
+            except StageFailed as e:
+                if spec.required:
+                    raise
+                reasons[spec.name] = f"failed: {e.reason}"
+                jobs.stage(job_id, spec.name, state=J.FAILED, message=e.reason)
+                warning = {"stage": e.stage, "reason": e.reason}
+                jobs.update(job_id, lambda j: j.setdefault("warnings", []).append(warning))
+                _logger().warning("session %s: %s failed, continuing without it: %s", st["sha256"][:12], e.stage,
+                                  e.reason)
+                continue
             refs[spec.name] = res["ref"]
             timings[spec.name] = res["seconds"]
         current = "bundle"

@@ -55,6 +55,9 @@ class StageSpec:
     requires: tuple[str, ...]  # upstream stages (besides the session)
     build_inputs: Callable[[StageContext], Any]
     metrics: Callable[[Any], dict] = lambda out: dict(getattr(out, "metrics", {}) or {})
+    # False for stages that only measure (evaluation, residual analysis): when one fails the job still
+    # completes with the model, and the report says why that section is empty.
+    required: bool = True
 
     def output_type(self) -> type:
         mod, _, cls = self.output.partition(":")
@@ -156,13 +159,35 @@ PIPELINE: tuple[StageSpec, ...] = (
     StageSpec("fusion", "service.fusion", "service.fusion.types:FusionOutputs", ("tracking", "contact"),
               _fusion_inputs),
     StageSpec("evaluation", "service.evaluation", "service.evaluation.types:EvaluationOutputs",
-              ("tracking", "contact", "fusion"), _evaluation_inputs, metrics=lambda out: {}),
+              ("tracking", "contact", "fusion"), _evaluation_inputs, metrics=lambda out: {}, required=False),
     StageSpec("residuals", "service.residuals", "service.residuals.types:ResidualOutputs",
               ("tracking", "contact", "fusion"), _residual_inputs,
               metrics=lambda out: {"accepted": list(out.accepted), **{f"before_{k}": v for k, v in out.error_before.items()},
-                                   **{f"after_{k}": v for k, v in out.error_after.items()}}),
+                                   **{f"after_{k}": v for k, v in out.error_after.items()}},
+              required=False),
 )
 STAGES: dict[str, StageSpec] = {s.name: s for s in PIPELINE}
+
+
+def select_stages(selection: str | list[str] | tuple[str, ...] | None) -> tuple[str, ...] | None:
+    """Stages to run: None = all; ``"all"``; ``"none"`` (ingest and bundle only); ``"a,b"`` or a list.
+
+    The default comes from ``VYSICS_STAGES``. Unknown names raise ``ValueError``."""
+    import os
+
+    if selection is None:
+        selection = os.environ.get("VYSICS_STAGES") or "all"
+    if isinstance(selection, str):
+        text = selection.strip()
+        if text in ("", "all"):
+            return None
+        if text == "none":
+            return ()
+        selection = [s.strip() for s in text.split(",") if s.strip()]
+    unknown = [s for s in selection if s not in STAGES]
+    if unknown:
+        raise ValueError(f"stages: unknown {unknown}, expected names from {list(STAGES)}, 'all' or 'none'")
+    return tuple(selection)
 
 
 # --------------------------------------------------------------------------- running one stage

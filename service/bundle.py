@@ -230,7 +230,8 @@ def parts_from_outputs(
         session={"name": session.name, "sha256": session.sha256, "frames": int(session.n_frames)},
         timings_s=timings_s, model=model, tracking=tr, evaluation=ev, residuals=rs, reasons=rsn,
         extra={"stages": {s: {"ran": outputs.get(s) is not None, **({"reason": reasons[s]} if s in reasons else {})}
-                          for s in ("tracking", "contact", "fusion", "evaluation", "residuals")}},
+                          for s in dict.fromkeys(("tracking", "contact", "fusion", "evaluation", "residuals",
+                                                  *outputs, *reasons))}},
     )
     t = X = None
     if tr is not None:

@@ -145,7 +145,7 @@ class _JobWatcher(threading.Thread):
 
 
 def process(session: Path, *, out: Path | None, data_dir: Path, preset: str | None, config: dict | None,
-            quiet: bool = False) -> dict:
+            quiet: bool = False, stages: str | None = None) -> dict:
     """Run the flow on a session folder or archive; returns the flow's result (raises on failure)."""
     from flows.runtime import configure_prefect
 
@@ -165,7 +165,7 @@ def process(session: Path, *, out: Path | None, data_dir: Path, preset: str | No
         watcher.start()
     try:
         return process_session(session=str(session.resolve()), data_dir=str(data_dir), preset=preset, config=config,
-                               job_id=sha, out_dir=str(out.resolve()) if out else None)
+                               job_id=sha, out_dir=str(out.resolve()) if out else None, stages=stages)
     finally:
         if watcher:
             watcher.close()
@@ -181,15 +181,16 @@ def cmd_run(a: argparse.Namespace) -> int:
         return EXIT_INVALID
     config = json.loads(Path(a.config).read_text()) if a.config else None
     try:
-        res = process(session, out=Path(a.out), data_dir=data_dir, preset=a.preset, config=config, quiet=a.quiet)
+        res = process(session, out=Path(a.out), data_dir=data_dir, preset=a.preset, config=config, quiet=a.quiet,
+                      stages=a.stages)
     except InvalidSession as e:
         _err(f"{e.file}: {e.rule}")
         return EXIT_INVALID
     except StageFailed as e:
         _err(f"{e.stage}: {e.reason}")
         return EXIT_FAILED
-    except ValueError as e:  # bad preset / config
-        _err(f"{a.config or '--preset'}: {e}")
+    except ValueError as e:  # bad preset / config / stage selection
+        _err(f"{a.config or '--preset/--stages'}: {e}")
         return EXIT_INVALID
     print(f"bundle: {Path(a.out).resolve()}  (zip: {res['bundle_zip']})")
     for stage, reason in (res.get("skipped") or {}).items():
@@ -331,6 +332,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--preset", default=None, choices=["default", "fast"], help="pipeline preset (VYSICS_PRESET)")
     r.add_argument("--config", default=None, help="JSON file of per-stage overrides")
     r.add_argument("--data-dir", default=None, type=Path, help="store (VYSICS_DATA_DIR, default ./vysics-data)")
+    r.add_argument("--stages", default=None,
+                   help="science stages to run: all | none | tracking,contact,... (default VYSICS_STAGES or all)")
     r.add_argument("--quiet", action="store_true", help="no progress bars")
     r.set_defaults(func=cmd_run)
 

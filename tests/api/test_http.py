@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import subprocess
 import sys
 import threading
@@ -37,6 +38,9 @@ def archive(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory, prefect_server):
+    # the runner runs ingest and bundle only: these tests are about the service, not the science stages
+    old_stages = os.environ.get("VYSICS_STAGES")
+    os.environ["VYSICS_STAGES"] = "none"
     data = tmp_path_factory.mktemp("apidata")
     settings = ApiSettings(data_dir=data, preset="fast", launcher="local", runner_poll_s=0.2)
     app = create_app(settings)
@@ -52,6 +56,10 @@ def server(tmp_path_factory, prefect_server):
         yield client, data
     srv.should_exit = True
     th.join(timeout=30)
+    if old_stages is None:
+        os.environ.pop("VYSICS_STAGES", None)
+    else:
+        os.environ["VYSICS_STAGES"] = old_stages
 
 
 def _upload(client: httpx.Client, path: Path, name: str | None = None) -> httpx.Response:
