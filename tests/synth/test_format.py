@@ -62,6 +62,8 @@ def test_archives_ingest(clean_tiny, tmp_path):
         a = make_archive(res.session_dir, tmp_path / name)
         sess = ingest(a, tmp_path / f"ing_{name}")
         assert sess.n_frames == 60
+        again = make_archive(res.session_dir, tmp_path / f"again_{name}")
+        assert again.read_bytes() == a.read_bytes()  # deterministic archives
 
 
 def test_sidecar_outside_session_and_not_leaked(noisy_tiny):
