@@ -67,7 +67,7 @@ def plot_heldout_errors(out: ResidualOutputs, path: Path) -> Path:
         ax.set_yscale("log")
     ax.set_xlabel("block error before (mm)")
     ax.set_ylabel("block error after (mm)")
-    ax.set_title(f"held-out blocks ({len(b)}), accepted: {', '.join(out.accepted) or 'none'}")
+    ax.set_title(f"{len(b)} held-out blocks, before vs after")
     ax = fig.add_subplot(1, 2, 2)
     cands = [c for c in out.candidates if np.isfinite(c.heldout_error_before) and c.heldout_error_before > 0]
     rel = [100 * (c.heldout_error_before - c.heldout_error_after) / c.heldout_error_before for c in cands]
