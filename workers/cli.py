@@ -113,6 +113,7 @@ class _JobWatcher(threading.Thread):
         self.jobs, self.job_id = jobs, job_id
         self.stop = threading.Event()
         self.bars: dict[str, _Bar] = {}
+        self.last: dict[str, tuple[float, str]] = {}
 
     def run(self) -> None:
         while not self.stop.is_set():
@@ -125,14 +126,20 @@ class _JobWatcher(threading.Thread):
         if job is None:
             return
         for stage, st in job["stages"].items():
-            if st["state"] in ("pending",):
+            if st["state"] == "pending":
                 continue
-            if stage not in self.bars:
-                self.bars[stage] = _Bar(f"{stage:>10}")
             msg = st.get("message") or st["state"]
             if st["state"] == "skipped":
                 msg = f"skipped: {msg}"
-            self.bars[stage](1.0 if st["state"] in ("completed",) else st["fraction"], msg)
+            elif st.get("cached"):
+                msg = "cached"
+            frac = 1.0 if st["state"] == "completed" else float(st["fraction"])
+            if self.last.get(stage) == (frac, msg):
+                continue
+            self.last[stage] = (frac, msg)
+            if stage not in self.bars:
+                self.bars[stage] = _Bar(f"{stage:>10}")
+            self.bars[stage](frac, msg)
 
     def close(self) -> None:
         self.stop.set()
@@ -171,8 +178,14 @@ def process(session: Path, *, out: Path | None, data_dir: Path, preset: str | No
             watcher.close()
 
 
+def _quiet_prefect() -> None:
+    """Prefect's own INFO lines (server start, task states) would tear through the progress bars."""
+    os.environ.setdefault("PREFECT_LOGGING_LEVEL", "WARNING")
+
+
 def cmd_run(a: argparse.Namespace) -> int:
     data_dir = _use_data_dir(a.data_dir)
+    _quiet_prefect()
     from service.errors import InvalidSession, StageFailed
 
     session = Path(a.session)
@@ -274,6 +287,7 @@ def cmd_fit_dynamics(a: argparse.Namespace) -> int:
 
 def cmd_bench(a: argparse.Namespace) -> int:
     data_dir = _use_data_dir(a.data_dir)
+    _quiet_prefect()
     import importlib
 
     try:
