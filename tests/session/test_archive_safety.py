@@ -132,3 +132,13 @@ def test_zip_encrypted_member_refused(tmp_path):
     with pytest.raises(InvalidSession) as ei:
         ingest(arc, tmp_path / "d")
     assert ei.value.file == "robot.csv" and "encrypted" in ei.value.rule
+
+
+def test_dot_slash_member_names(tmp_path):
+    """`tar czf s.tgz -C folder .` writes ./session.json, ./rgb/...: that is the archive root."""
+    src = write_session(tmp_path / "src")
+    arc = tmp_path / "a.tgz"
+    with tarfile.open(arc, "w:gz") as tf:
+        tf.add(src, ".")
+    s = ingest(arc, tmp_path / "d")
+    assert s.root == (tmp_path / "d").resolve() and s.n_frames == 4
