@@ -401,10 +401,14 @@ def load_session(root: Path, sha256: str, *, limits: Limits | None = None) -> Se
     name = None
     table_height = None
     if side.is_file():
-        data = json.loads(side.read_text())
-        name = data.get("name")
-        if data.get("table_height_detected"):
-            table_height = data.get("table_height")
+        try:
+            data = json.loads(side.read_text())
+        except (ValueError, OSError):
+            data = {}  # unreadable: fall back to the defaults and to detecting the table again
+        name = data.get("name") if isinstance(data.get("name"), str) else None
+        h = data.get("table_height")
+        if data.get("table_height_detected") and isinstance(h, (int, float)):
+            table_height = float(h)
     return build_session(
         root, sha256, limits if limits is not None else Limits(), full=False, name=name, table_height=table_height
     )

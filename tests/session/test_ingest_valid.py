@@ -144,3 +144,10 @@ def test_dest_inside_source_folder_is_refused(session_dir):
     with pytest.raises(ValueError):
         ingest(session_dir, session_dir / "staging")
     assert not (session_dir / "staging").exists()
+
+
+def test_load_session_survives_a_broken_sidecar(make, tmp_path):
+    s = ingest(make(Spec(meta={"table": {"height": None}})), tmp_path / "d")
+    (s.root / ".vysics-ingest.json").write_text("{not json")
+    r = load_session(s.root, s.sha256)
+    assert r.table_height_detected and abs(r.table_height - s.table_height) < 1e-3
