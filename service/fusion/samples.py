@@ -114,11 +114,13 @@ def hyperplane_anchors(
     x = tri[:, 0] + u[:, None] * (tri[:, 1] - tri[:, 0]) + v[:, None] * (tri[:, 2] - tri[:, 0])
     m = np.asarray(tm.face_normals, float)[face]
     keep = np.zeros(n_surface, bool)
-    for a in range(0, n_surface, 4096):  # (chunk, P) plane distances
-        xs, ms = x[a:a + 4096], m[a:a + 4096]
-        d = np.abs(np.einsum("sk,pk->sp", xs, N) - (P * N).sum(1)[None, :])
+    offs = (P * N).sum(1)
+    chunk = max(1, 4_000_000 // len(P))  # (chunk, P) plane distances, ≤ 32 MB at a time
+    for a in range(0, n_surface, chunk):
+        xs, ms = x[a:a + chunk], m[a:a + chunk]
+        d = np.abs(xs @ N.T - offs[None, :])
         i_star = d.argmin(1)
-        keep[a:a + 4096] = (d[np.arange(len(xs)), i_star] < tol) & ((ms * N[i_star]).sum(1) > 0)
+        keep[a:a + chunk] = (d[np.arange(len(xs)), i_star] < tol) & ((ms * N[i_star]).sum(1) > 0)
     return x[keep], m[keep]
 
 

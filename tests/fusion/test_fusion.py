@@ -99,3 +99,17 @@ def test_far_physible_outliers_are_dropped(scene):
     out = run(dataclasses.replace(inputs, physible_points_O=P, physible_normals_O=N), cfg)
     assert out.metrics["physible_dropped"] == 1
     assert out.sdf.bounds_O[1][0] < 0.5  # the grid was not stretched to the outlier
+
+
+def test_no_contacts_and_no_physible_mesh(scene):
+    """Without a physible set the pass is a vision-only refit; it still returns a closed surface."""
+    inputs, _, _ = scene
+    cfg = dataclasses.replace(CFG, sdf=dataclasses.replace(CFG.sdf, steps=5))
+    empty = dataclasses.replace(inputs, physible_points_O=np.zeros((0, 3)), physible_normals_O=np.zeros((0, 3)))
+    out = run(empty, cfg)
+    assert out.mesh.to_trimesh().is_watertight and out.metrics["sp_samples"] == 0
+    from service.mesh import Mesh
+
+    no_mesh = dataclasses.replace(inputs, physible_mesh=Mesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64)))
+    out = run(no_mesh, cfg)
+    assert out.metrics["anchors"] == 0 and out.metrics["hc_samples"] == 0 and out.metrics["sp_samples"] > 0
