@@ -100,3 +100,12 @@ def test_reprocess_finds_out_of_date_sessions(session_dir, tmp_path, prefect_ser
     res = process_session(session=str(session_dir), data_dir=str(tmp_path), preset="fast", stages="none")
     assert stale_sessions(settings, PipelineConfig.preset_named("fast")) == []
     assert stale_sessions(settings, PipelineConfig.preset_named("default")) == [res["sha256"]]
+
+
+def test_deployments_are_defined():
+    from flows.deployments import process_session, reprocess_datasets
+
+    d = process_session.to_deployment(name="process-session")
+    assert (d.flow_name, d.name) == ("process-session", "process-session")
+    r = reprocess_datasets.to_deployment(name="reprocess-datasets", cron="0 3 * * *")
+    assert r.schedules and r.schedules[0].schedule.cron == "0 3 * * *"
