@@ -28,18 +28,32 @@ from service.fusion.types import LossWeights
 QueryFn = Callable[[torch.Tensor], torch.Tensor]
 
 
+def sp_from_values(S: torch.Tensor, target: torch.Tensor, tau: float) -> torch.Tensor:
+    """mean ((S − l)/τ)² of SDF values (M,) and targets (M,) (0 when M = 0)."""
+    if len(S) == 0:
+        return torch.zeros(())
+    return (((S - target) / tau) ** 2).mean()
+
+
+def hc_from_values(S: torch.Tensor, bound: torch.Tensor, tau: float) -> torch.Tensor:
+    """mean (min(0, S − b)/τ)² of SDF values (M,) and lower bounds (M,) (0 when M = 0)."""
+    if len(S) == 0:
+        return torch.zeros(())
+    return (torch.clamp((S - bound) / tau, max=0.0) ** 2).mean()
+
+
 def support_point_loss(query_fn: QueryFn, x: torch.Tensor, target: torch.Tensor, tau: float) -> torch.Tensor:
     """x (M,3), target (M,) metres -> scalar mean ((S(x) − l)/τ)²."""
     if len(x) == 0:
         return torch.zeros(())
-    return (((query_fn(x) - target) / tau) ** 2).mean()
+    return sp_from_values(query_fn(x), target, tau)
 
 
 def hyperplane_loss(query_fn: QueryFn, q: torch.Tensor, bound: torch.Tensor, tau: float) -> torch.Tensor:
     """q (M,3), lower bound (M,) metres -> scalar mean (min(0, S(q) − b)/τ)²."""
     if len(q) == 0:
         return torch.zeros(())
-    return (torch.clamp((query_fn(q) - bound) / tau, max=0.0) ** 2).mean()
+    return hc_from_values(query_fn(q), bound, tau)
 
 
 def convexity_pairs(
@@ -155,9 +169,9 @@ class PhysibleLosses:
             Sk = S[a:a + n[key]]
             a += n[key]
             if key == "sp":
-                parts[key] = (((Sk - l_sp) / self.tau) ** 2).mean()
+                parts[key] = sp_from_values(Sk, l_sp, self.tau)
             elif key == "hc":
-                parts[key] = (torch.clamp((Sk - b_hc) / self.tau, max=0.0) ** 2).mean()
+                parts[key] = hc_from_values(Sk, b_hc, self.tau)
             else:
                 parts[key] = convexity_hinge(Sk, bound, self.tau)
         total = sum(getattr(w, k) * v for k, v in parts.items())
