@@ -1,0 +1,209 @@
+"""Tracking and visible-geometry benchmark (service.tracking.run).
+
+Synthetic: sessions of the synthetic lab whose objects and seeds were not used while developing the tracker
+(development used baking_box seed 101), 640x480, 300 frames, heavy occlusion, sensor noise on. Pose error after
+the fixed body-frame offset X_OG = X_WO(0)⁻¹ X_WG(0); visible-surface accuracy = mean distance from the
+vertices of the visible mesh to the true surface (all vertices, and those in voxels with direct depth support);
+targets: median rotation ≤ 2°, median translation ≤ 5 mm, worst ≤ 5° / 15 mm, surface ≤ 3 mm, ≤ 60 s, ≤ 3 GB.
+
+Real: the Franka cube RGB-D video (/work/shared/data/real/franka_cube_rgbd_sequence), no robot data: W is put
+on the table plane found in frame 0 by RANSAC (table at z = 0): poses against the shipped BundleSDF estimates after a fixed body-frame offset, excluding BundleSDF's
+frozen frames 0287–0360, and the cube's size from the oriented box of the visible mesh (true edge 0.1048 m).
+
+    /work/venv/bin/python benchmarks/tracking.py                 # synthetic set + real video
+    /work/venv/bin/python benchmarks/tracking.py --only synth    # or: --only real
+    /work/venv/bin/python benchmarks/tracking.py --one DIR       # one synthetic session folder
+
+Each session runs in a fresh process so that its peak RSS (resource.getrusage) is its own. Timings on a shared
+machine are inflated; the load average is printed next to them. Never fails on a target: it prints figures.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shlex
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REAL = Path("/work/shared/data/real/franka_cube_rgbd_sequence")
+CASES = [  # (object, interaction, seed): none of them used in development
+    ("milk_carton", "push", 701),
+    ("l_block", "pivot", 702),
+    ("oat_carton", "topple", 703),
+]
+
+
+def table_frame(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, seed: int = 0) -> np.ndarray:
+    """X_WC with W on the dominant plane of a depth image outside the mask (RANSAC): z_W = plane normal toward
+    the camera, origin = foot of the camera centre on the plane, x_W = camera x projected on the plane."""
+    rng = np.random.default_rng(seed)
+    v, u = np.nonzero((depth > 0) & ~mask)
+    i = rng.choice(len(u), min(len(u), 20000), replace=False)
+    u, v = u[i], v[i]
+    d = depth[v, u]
+    P = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], 1)
+    best, best_n = None, -1
+    for _ in range(300):
+        a, b, c = P[rng.choice(len(P), 3, replace=False)]
+        n = np.cross(b - a, c - a)
+        if np.linalg.norm(n) < 1e-9:
+            continue
+        n /= np.linalg.norm(n)
+        cnt = int((np.abs((P - a) @ n) < 0.005).sum())
+        if cnt > best_n:
+            best, best_n = (n, a), cnt
+    n, a = best
+    inl = np.abs((P - a) @ n) < 0.005
+    c = P[inl].mean(0)
+    n = np.linalg.svd(P[inl] - c)[2][2]
+    if n @ (-c) < 0:
+        n = -n  # toward the camera
+    foot = np.zeros(3) - ((np.zeros(3) - c) @ n) * n
+    x = np.array([1.0, 0, 0]) - n[0] * n
+    x /= np.linalg.norm(x)
+    y = np.cross(n, x)
+    X_CW = np.eye(4)
+    X_CW[:3, :3] = np.stack([x, y, n], 1)
+    X_CW[:3, 3] = foot
+    return np.linalg.inv(X_CW)
+
+
+def real_session(root: Path = REAL):
+    """A Session over the real video. No robot data: W is put on the table plane detected in frame 0 (z up,
+    table at z = 0)."""
+    import cv2
+
+    from service.session.types import Friction, Session
+
+    rgb = tuple(sorted((root / "color").glob("*.jpg")))
+    dep = tuple(sorted((root / "depth").glob("*.png")))
+    msk = tuple(sorted((root / "mask").glob("*.png")))
+    n = len(rgb)
+    if not (n and len(dep) == n and len(msk) == n):
+        raise SystemExit(f"{root}: expected as many color/, depth/ and mask/ frames")
+    K = np.loadtxt(root / "camera_K.txt")
+    d0 = cv2.imread(str(dep[0]), cv2.IMREAD_UNCHANGED).astype(np.float32) * 0.001
+    X_WC = table_frame(d0, cv2.imread(str(msk[0]), cv2.IMREAD_UNCHANGED) > 0, K)
+    return Session(
+        name="franka_cube_rgbd_sequence", root=root, sha256="real", frame_times=np.arange(n) / 30.0, K=K,
+        X_WC=X_WC, depth_scale=0.001, width=640, height=480, rgb_files=rgb, depth_files=dep, mask_files=msk,
+        robot_t=np.zeros(0), robot_p_WE=np.zeros((0, 3)), robot_cmd_WE=None, p_WE=np.zeros((n, 3)), cmd_WE=None,
+        ee_radius=0.0195, table_height=0.0, table_height_detected=True, friction=Friction(), mass=None,
+        has_ground_truth=False)
+
+
+def _observed_vertices(out) -> np.ndarray:
+    g = out.sdf
+    k = np.round((out.visible_mesh.vertices - g.origin_O) / g.voxel).astype(int)
+    k = np.clip(k, 0, np.array(g.values.shape) - 1)
+    return g.observed[k[:, 0], k[:, 1], k[:, 2]]
+
+
+def run_one(kind: str, path: Path) -> dict:
+    import trimesh
+
+    from service.session import load_session
+    from service.tracking import TrackingConfig, TrackingInputs, run
+    from service.transforms import X_inv, pose_errors, xyzquat_to_pose
+
+    s = load_session(path, "bench") if kind == "synth" else real_session(path)
+    t0 = time.perf_counter()
+    out = run(TrackingInputs(s), TrackingConfig())
+    wall = time.perf_counter() - t0
+    rss_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
+    res = {"session": s.name, "frames": s.n_frames, "wall_s": wall, "peak_rss_gb": rss_gb,
+           "tracked": float(out.tracked.mean()), "visible_points": len(out.visible_points_O),
+           "load_avg": os.getloadavg()[0]}
+    if kind == "synth":
+        gt = np.loadtxt(path / "ground_truth" / "poses.csv", delimiter=",", skiprows=1)
+        X_WG = xyzquat_to_pose(gt[:, 1:8])
+        X_OG = X_inv(out.X_WO[0]) @ X_WG[0]
+        et, er = pose_errors(out.X_WO @ X_OG, X_WG)
+        X_GO = X_inv(X_OG)
+        mG = trimesh.load(path / "ground_truth" / "mesh.obj", force="mesh")
+        vG = out.visible_mesh.vertices @ X_GO[:3, :3].T + X_GO[:3, 3]
+        _, d, _ = trimesh.proximity.closest_point(mG, vG)
+        obs = _observed_vertices(out)
+        VG = out.visible_points_O @ X_GO[:3, :3].T + X_GO[:3, 3]
+        _, dV, _ = trimesh.proximity.closest_point(mG, VG) if len(VG) else (None, np.array([np.nan]), None)
+        res.update(rot_med_deg=float(np.degrees(np.median(er))), rot_max_deg=float(np.degrees(er.max())),
+                   trans_med_mm=float(1e3 * np.median(et)), trans_max_mm=float(1e3 * et.max()),
+                   surface_mean_mm=float(1e3 * d[obs].mean()) if obs.any() else float("nan"),
+                   surface_all_mean_mm=float(1e3 * d.mean()), V_mean_mm=float(1e3 * np.mean(dV)))
+    else:
+        T = np.load(path / "bundlesdf_ob_in_cam.npz")["T_cam_obj"]
+        keep = np.ones(len(T), bool)
+        keep[286:360] = False  # files 0287..0360: BundleSDF frozen
+        X_CO = X_inv(s.X_WC) @ out.X_WO  # our poses in the camera frame, like T_cam_obj
+        X_OB = X_inv(X_CO[0]) @ T[0]
+        et, er = pose_errors(X_CO @ X_OB, T)
+        ext = np.sort(out.visible_mesh.to_trimesh().bounding_box_oriented.primitive.extents)
+        import trimesh as _tm
+
+        hull_ext = np.sort(_tm.points.PointCloud(out.visible_points_O).bounding_box_oriented.primitive.extents) \
+            if len(out.visible_points_O) > 4 else np.full(3, np.nan)
+        res.update(rot_med_deg=float(np.degrees(np.median(er[keep]))), rot_p90_deg=float(np.degrees(np.quantile(er[keep], 0.9))),
+                   rot_max_deg=float(np.degrees(er[keep].max())), trans_med_mm=float(1e3 * np.median(et[keep])),
+                   trans_p90_mm=float(1e3 * np.quantile(et[keep], 0.9)), trans_max_mm=float(1e3 * et[keep].max()),
+                   mesh_obb_extents_m=[float(x) for x in ext], V_obb_extents_m=[float(x) for x in hull_ext])
+    return res
+
+
+def _ensure_synth(work: Path, obj: str, inter: str, seed: int) -> Path:
+    from service.synth import SynthSpec, make_session
+
+    d = work / f"{obj}_{inter}_{seed}"
+    if not (d / "session.json").is_file():
+        make_session(SynthSpec(object=obj, interaction=inter, seed=seed, preset="full", occlusion="heavy",
+                               noise=True), d)
+    return d
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--only", choices=["synth", "real"])
+    ap.add_argument("--one", type=Path)
+    ap.add_argument("--kind", default="synth", choices=["synth", "real"])
+    ap.add_argument("--work", type=Path, default=Path("/tmp/vysics-bench-tracking"))
+    a = ap.parse_args()
+    if a.one:
+        print(json.dumps(run_one(a.kind, a.one)))
+        return
+    print("command:", " ".join(shlex.quote(x) for x in [sys.executable] + sys.argv))
+    rows = []
+    if a.only in (None, "synth"):
+        a.work.mkdir(parents=True, exist_ok=True)
+        for obj, inter, seed in CASES:
+            d = _ensure_synth(a.work, obj, inter, seed)
+            rows.append(("synth", d))
+    if a.only in (None, "real"):
+        rows.append(("real", REAL))
+    for kind, d in rows:
+        p = subprocess.run([sys.executable, __file__, "--one", str(d), "--kind", kind], capture_output=True, text=True)
+        if p.returncode:
+            print(f"{d.name}: FAILED\n{p.stderr[-2000:]}")
+            continue
+        r = json.loads(p.stdout.strip().splitlines()[-1])
+        if kind == "synth":
+            print(f"{r['session']:28s} rot med {r['rot_med_deg']:.2f}° max {r['rot_max_deg']:.2f}° | "
+                  f"trans med {r['trans_med_mm']:.2f} max {r['trans_max_mm']:.2f} mm | surface {r['surface_mean_mm']:.2f} mm "
+                  f"(all vertices {r['surface_all_mean_mm']:.2f}, V {r['V_mean_mm']:.2f}) | tracked {r['tracked']:.2f} | "
+                  f"{r['wall_s']:.1f} s, {r['peak_rss_gb']:.2f} GB (load {r['load_avg']:.1f})")
+        else:
+            print(f"{r['session']:28s} vs BundleSDF (frames 0287-0360 excluded): rot med {r['rot_med_deg']:.2f}° "
+                  f"p90 {r['rot_p90_deg']:.2f}° max {r['rot_max_deg']:.2f}° | trans med {r['trans_med_mm']:.1f} "
+                  f"p90 {r['trans_p90_mm']:.1f} max {r['trans_max_mm']:.1f} mm | tracked {r['tracked']:.2f} | "
+                  f"mesh OBB {np.round(r['mesh_obb_extents_m'], 4).tolist()} m, V OBB "
+                  f"{np.round(r['V_obb_extents_m'], 4).tolist()} m (cube 0.1048) | {r['wall_s']:.1f} s, "
+                  f"{r['peak_rss_gb']:.2f} GB (load {r['load_avg']:.1f})")
+
+
+if __name__ == "__main__":
+    main()
