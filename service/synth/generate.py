@@ -169,34 +169,40 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
         rend.close()
 
     # ----------------------------------------------------------------------------- files
-    eff = spec.effects
-    name = spec.session_name()
-    session = {
-        "format": FORMAT,
-        "name": name,
-        "fps": fps,
-        "frame_times": None,
-        "camera": {"K": K.tolist(), "depth_scale": DEPTH_SCALE, "T_world_camera": X_WC.tolist()},
-        "robot": {"ee_radius": EE_RADIUS, "joints": None, "tip_offset": None},
-        "table": {"height": table_h if spec.declare_table_height else None},
-        "friction": {"object_table": spec.friction_object_table, "object_robot": spec.friction_object_robot},
-        "object": {"mass": obj.mass if spec.declare_mass else None},
-    }
-    (tmp / "session.json").write_text(json.dumps(session, indent=2) + "\n")
-    robot_p = _noise.noisy_robot(rec.robot_p, rng_noise) if spec.noise else rec.robot_p
-    robot_rows = np.c_[rec.robot_t + eff.clock_offset, robot_p, rec.robot_cmd]
-    (tmp / "robot.csv").write_text(_csv("t,ee_x,ee_y,ee_z,cmd_x,cmd_y,cmd_z", robot_rows, "%.6f"))
-    Mesh.from_trimesh(obj.mesh).save_obj(tmp / "ground_truth" / "mesh.obj")
-    q = mat_to_quat(rec.X_WM[:, :3, :3])
-    pose_rows = np.c_[rec.frame_t, rec.X_WM[:, :3, 3], q]
-    (tmp / "ground_truth" / "poses.csv").write_text(_csv("t,x,y,z,qw,qx,qy,qz", pose_rows, "%.9f"))
-    contacts = _contact_intervals(rec.robot_t, rec.contact)
-    crow = np.asarray(contacts, float).reshape(-1, 2)
-    (tmp / "ground_truth" / "contacts.csv").write_text(_csv("t_start,t_end", crow, "%.6f"))
+    try:
+        eff = spec.effects
+        name = spec.session_name()
+        session = {
+            "format": FORMAT,
+            "name": name,
+            "fps": fps,
+            "frame_times": None,
+            "camera": {"K": K.tolist(), "depth_scale": DEPTH_SCALE, "T_world_camera": X_WC.tolist()},
+            "robot": {"ee_radius": EE_RADIUS, "joints": None, "tip_offset": None},
+            "table": {"height": table_h if spec.declare_table_height else None},
+            "friction": {"object_table": spec.friction_object_table, "object_robot": spec.friction_object_robot},
+            "object": {"mass": obj.mass if spec.declare_mass else None},
+        }
+        (tmp / "session.json").write_text(json.dumps(session, indent=2) + "\n")
+        robot_p = _noise.noisy_robot(rec.robot_p, rng_noise) if spec.noise else rec.robot_p
+        robot_rows = np.c_[rec.robot_t + eff.clock_offset, robot_p, rec.robot_cmd]
+        (tmp / "robot.csv").write_text(_csv("t,ee_x,ee_y,ee_z,cmd_x,cmd_y,cmd_z", robot_rows, "%.6f"))
+        Mesh.from_trimesh(obj.mesh).save_obj(tmp / "ground_truth" / "mesh.obj")
+        q = mat_to_quat(rec.X_WM[:, :3, :3])
+        pose_rows = np.c_[rec.frame_t, rec.X_WM[:, :3, 3], q]
+        (tmp / "ground_truth" / "poses.csv").write_text(_csv("t,x,y,z,qw,qx,qy,qz", pose_rows, "%.9f"))
+        # contact intervals on the frame clock, clipped to the span of the frames
+        t_last = float(rec.frame_t[-1])
+        contacts = [(max(a, 0.0), min(b, t_last)) for a, b in _contact_intervals(rec.robot_t, rec.contact) if b >= 0.0 and a <= t_last]
+        crow = np.asarray(contacts, float).reshape(-1, 2)
+        (tmp / "ground_truth" / "contacts.csv").write_text(_csv("t_start,t_end", crow, "%.6f"))
 
-    if out_dir.exists():
-        shutil.rmtree(out_dir)
-    os.replace(tmp, out_dir)
+        if out_dir.exists():
+            shutil.rmtree(out_dir)
+        os.replace(tmp, out_dir)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
 
     valid = hidden[~np.isnan(hidden)]
     occ_mean = float(valid.mean()) if len(valid) else float("nan")
