@@ -35,6 +35,8 @@ from service.synth.types import INTERACTIONS, OCCLUSION_LEVELS, PRESETS, HiddenE
 from service.transforms import mat_to_quat, rotation_angle
 
 FORMAT = "vysics-session/1"
+# azimuth of the camera around the object (world x points away from the robot base)
+CAMERA_SIDES = {"side": -np.pi / 2, "front": 0.0, "other_side": np.pi / 2, "random": 0.0}
 DEPTH_SCALE = 0.001
 
 
@@ -60,6 +62,8 @@ def _validate(spec: SynthSpec) -> None:
         raise ValueError(f"object {spec.object!r}: expected one of {list(OBJECT_KINDS)}")
     if spec.interaction not in INTERACTIONS:
         raise ValueError(f"interaction {spec.interaction!r}: expected one of {list(INTERACTIONS)}")
+    if spec.camera_side not in CAMERA_SIDES:
+        raise ValueError(f"camera_side {spec.camera_side!r}: expected one of {list(CAMERA_SIDES)}")
     if spec.rgb_format not in ("png", "jpg"):
         raise ValueError(f"rgb_format {spec.rgb_format!r}: expected png or jpg")
     w, h, n, fps = spec.frame_geometry()
@@ -112,8 +116,10 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
     start_xy = np.array([0.5 + rng_scene.uniform(-0.04, 0.04), rng_scene.uniform(-0.04, 0.04)])
     start_yaw = float(rng_scene.uniform(-np.pi, np.pi))
     dist = float(spec.camera_distance) if spec.camera_distance is not None else float(rng_scene.uniform(0.6, 0.9))
-    az = -np.pi / 2 + rng_scene.uniform(-0.45, 0.45)
+    az = CAMERA_SIDES.get(spec.camera_side, 0.0) + rng_scene.uniform(-0.45, 0.45)
     el = rng_scene.uniform(0.5, 0.8)
+    if spec.camera_side == "random":
+        az += float(rng_scene.choice([-np.pi / 2, 0.0, np.pi / 2]))
     target = np.array([start_xy[0], start_xy[1], table_h + 0.45 * float(obj.extents[2])])
     eye = target + dist * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     X_WC = look_at(eye, target)

@@ -119,6 +119,7 @@ class SynthSpec:
     mass: float | None = None  # kg (default: the catalogue's)
     scale: float = 1.0  # object size factor
     camera_distance: float | None = None  # m (default: random in [0.6, 0.9])
+    camera_side: str = "side"  # side (-y) | front (+x, facing the robot) | other_side (+y) | random
     rgb_format: str = "jpg"  # jpg (quality 92, like the real sessions) | png
     friction_object_table: float = 0.26  # declared prior (and true value unless effects override it)
     friction_object_robot: float = 0.15

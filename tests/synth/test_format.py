@@ -112,3 +112,15 @@ def test_progress_reaches_one(tmp_path):
     make_session(SynthSpec(n_frames=6, noise=False), tmp_path / "p", progress=lambda f, m: seen.append((f, m)))
     fr = [f for f, _ in seen]
     assert fr[-1] == 1.0 and all(0.0 <= f <= 1.0 for f in fr) and fr == sorted(fr)
+
+
+def test_camera_sides(tmp_path):
+    from service.synth import SynthSpec, make_session
+
+    for side in ("front", "other_side"):
+        r = make_session(SynthSpec(n_frames=4, noise=False, camera_side=side, occlusion="heavy"), tmp_path / side)
+        X = np.asarray(json.loads((r.session_dir / "session.json").read_text())["camera"]["T_world_camera"])
+        look = X[:3, 2]
+        assert (look[0] < -0.5) if side == "front" else (look[1] < -0.5)
+        m = cv2.imread(str(r.session_dir / "masks" / "000000.png"), cv2.IMREAD_UNCHANGED)
+        assert (m > 0).sum() > 20 and 0.3 < r.occlusion_mean < 0.8
