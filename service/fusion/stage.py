@@ -25,12 +25,19 @@ from service.fusion.losses import PhysibleLosses
 from service.fusion.samples import hyperplane_anchors, hyperplane_samples, inside_box, ray_samples
 from service.fusion.types import FusionConfig, FusionInputs, FusionOutputs
 from service.mesh import Mesh
-from service.sdf import extract_mesh, fit_sdf, hull_sdf, make_grid_geometry, rays_from_frame
+from service.sdf import extract_mesh, fit_sdf, hull_sdf, make_grid_geometry, rays_from_frame, sdf_query
 from service.sdf.grid import grid_points
 from service.sdf.types import RaySet, SdfGrid
 from service.transforms import X_inv
 
 Progress = Callable[[float, str], None] | None
+
+
+def _sdf_extended(grid: SdfGrid, P: np.ndarray) -> np.ndarray:
+    """S at points (P,3); outside the grid box the distance to the box is added to the border value."""
+    b = grid.bounds_O
+    out = np.linalg.norm(np.maximum(b[0] - P, 0) + np.maximum(P - b[1], 0), axis=1)
+    return sdf_query(grid, P) + out
 
 
 def select_frames(tracked: np.ndarray, max_frames: int) -> np.ndarray:
@@ -41,22 +48,41 @@ def select_frames(tracked: np.ndarray, max_frames: int) -> np.ndarray:
     return idx[np.unique(np.round(np.linspace(0, len(idx) - 1, max_frames)).astype(int))]
 
 
-def session_rays(session, X_WO: np.ndarray, tracked: np.ndarray, cfg: FusionConfig) -> RaySet:
-    """Depth rays in O of up to ``cfg.max_frames`` tracked frames (subsampled pixels)."""
+def session_rays(
+    session, X_WO: np.ndarray, tracked: np.ndarray, cfg: FusionConfig, visible_sdf: SdfGrid | None = None
+) -> RaySet:
+    """Depth rays in O of up to ``cfg.max_frames`` tracked frames (subsampled pixels).
+
+    As in the first pass, an object pixel is used only when its back-projected point lies above the table
+    (by ``cfg.table_clearance``) and, given the visible SDF, within ``cfg.denoise`` of its zero level set
+    (BundleSDF drops rays > 2 cm from its point cloud)."""
     rng = np.random.default_rng(cfg.seed)
+    K = np.asarray(session.K, float)
     parts = []
     for i in select_frames(tracked, cfg.max_frames):
         X_OC = X_inv(X_WO[i]) @ session.X_WC
+        depth, mask = session.depth(int(i)), session.mask(int(i))
+        v, u = np.nonzero(mask & (depth > 0))
+        d = depth[v, u].astype(float)
+        P_C = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], 1)
+        P_W = P_C @ session.X_WC[:3, :3].T + session.X_WC[:3, 3]
+        ok = P_W[:, 2] > session.table_height + cfg.table_clearance
+        if visible_sdf is not None and len(P_C):
+            P_O = P_C @ X_OC[:3, :3].T + X_OC[:3, 3]
+            ok &= np.abs(_sdf_extended(visible_sdf, P_O)) < cfg.denoise
+        keep = np.zeros(mask.shape, bool)
+        keep[v[ok], u[ok]] = True
         parts.append(
             rays_from_frame(
-                session.depth(int(i)),
-                session.mask(int(i)),
-                session.K,
+                depth,
+                mask,
+                K,
                 X_OC,
                 stride=cfg.ray_stride_px,
                 ring_px=cfg.ring_px,
                 max_object_rays=cfg.max_object_rays_per_frame,
                 max_free_rays=cfg.max_free_rays_per_frame,
+                keep=keep,
                 rng=rng,
             )
         )
@@ -183,7 +209,7 @@ def run(inputs: FusionInputs, cfg: FusionConfig, *, progress: Progress = None) -
     if progress is not None:
         progress(0.0, "fusion: reading depth rays")
     t0 = time.perf_counter()
-    rays = session_rays(inputs.session, X_WO, tracked, cfg)
+    rays = session_rays(inputs.session, X_WO, tracked, cfg, inputs.visible_sdf)
     t_rays = time.perf_counter() - t0
     out = fuse(
         rays,

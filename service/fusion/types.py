@@ -102,6 +102,8 @@ class FusionConfig:
     ring_px: int = 30
     max_object_rays_per_frame: int = 1500
     max_free_rays_per_frame: int = 800
+    table_clearance: float = 0.005  # object pixels must back-project this far above the table, m
+    denoise: float = 0.02  # ... and within this of the visible SDF's zero level set, m
     pad: float = 0.02  # m around visible ∪ physible points
     max_physible_distance: float = 0.15  # physible points farther than this from the visible box are dropped, m
     anchor_samples: int = 25_000  # surface samples of the physible mesh tested as hyperplane anchors

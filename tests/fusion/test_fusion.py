@@ -113,3 +113,20 @@ def test_no_contacts_and_no_physible_mesh(scene):
     no_mesh = dataclasses.replace(inputs, physible_mesh=Mesh(np.zeros((0, 3)), np.zeros((0, 3), np.int64)))
     out = run(no_mesh, cfg)
     assert out.metrics["anchors"] == 0 and out.metrics["hc_samples"] == 0 and out.metrics["sp_samples"] > 0
+
+
+def test_session_rays_filter_table_and_outliers(scene):
+    inputs, visible, _ = scene
+    s, X, tr = inputs.session, inputs.X_WO, inputs.tracked
+    plain = session_rays(s, X, tr, CFG)
+    with_sdf = session_rays(s, X, tr, CFG, visible)
+    n_plain, n_sdf = int((plain.depth > 0).sum()), int((with_sdf.depth > 0).sum())
+    assert n_sdf >= 0.9 * n_plain  # the visible SDF explains the observed points
+    far = dataclasses.replace(visible, origin_O=visible.origin_O + np.array([0.2, 0.0, 0.0]))
+    assert int((session_rays(s, X, tr, CFG, far).depth > 0).sum()) == 0
+    high = dataclasses.replace(s, table_height=0.03)
+    rays = session_rays(high, X, tr, CFG)
+    surf_O = rays.surface_points_O
+    assert 0 < len(surf_O) < n_plain
+    # O and W differ by a translation only in this scene (z offset HALF[2] plus the frame's slide)
+    assert np.all(surf_O[:, 2] + HALF[2] > 0.03 + CFG.table_clearance - 1e-3)
