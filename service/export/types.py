@@ -11,8 +11,11 @@ class ExportConfig:
 
     ``convex_tolerance``: a watertight mesh whose volume is within this fraction of its convex hull's
     volume is taken as convex and exported as its hull (one exact piece, no V-HACD).
-    The ``vhacd_*`` fields are passed to ``pybullet.vhacd`` (V-HACD 2); resolution is the number of
-    voxels of the decomposition grid, the main speed/accuracy knob.
+    The ``vhacd_*`` fields are passed to ``pybullet.vhacd`` (V-HACD 2). ``resolution`` is the voxel
+    budget of the decomposition grid, but pybullet's build voxelises at no less than 64 cells per side
+    (about 6·10⁵ voxels for a 2:1 box), so below that the time is set by the clipping-plane search
+    (``plane_downsampling``, ``hull_downsampling``: larger is coarser and faster) and ``depth``.
+    Measured: a mug-like 33k-face marching-cubes mesh takes about 1.7 s of CPU with either preset.
     """
 
     convex_tolerance: float = 0.02
