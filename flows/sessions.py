@@ -39,15 +39,18 @@ def session_dir(data_dir: Path, sha: str) -> Path:
 
 
 def find_root(folder: Path) -> Path | None:
-    """The folder holding ``session.json``: ``folder`` itself or its single subfolder."""
+    """The folder holding ``session.json`` (``folder`` itself or its one top-level folder, the rule of
+    ``service.session.archive.find_root``), or None when ``folder`` holds no stored session."""
+    from service.errors import InvalidSession
+    from service.session.archive import find_root as _find_root
+
     folder = Path(folder)
-    if (folder / "session.json").is_file():
-        return folder
-    if folder.is_dir():
-        subs = [p for p in folder.iterdir() if p.is_dir() and (p / "session.json").is_file()]
-        if len(subs) == 1:
-            return subs[0]
-    return None
+    if not folder.is_dir():
+        return None
+    try:
+        return _find_root(folder, folder.name)
+    except InvalidSession:
+        return None
 
 
 def is_sha(s: str) -> bool:

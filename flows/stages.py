@@ -111,23 +111,8 @@ def _fusion_inputs(ctx: StageContext):
     )
 
 
-def assemble_model(session, contact, mesh, effects: dict | None = None):
-    """The ObjectModel of one geometry (``mesh`` in O) with the inertia and friction learned by contact."""
-    from service.model import ObjectModel
-
-    return ObjectModel(
-        visual=mesh,
-        collision=(),
-        mass=float(contact.mass),
-        mass_declared=session.mass is not None,
-        com_O=np.asarray(contact.com_O, float),
-        inertia_O=np.asarray(contact.inertia_O, float),
-        friction=contact.friction,
-        effects=dict(effects or {}),
-    )
-
-
 def _evaluation_inputs(ctx: StageContext):
+    from service.bundle import assemble_model
     from service.evaluation.types import EvaluationInputs
 
     tr, co, fu = ctx.value("tracking"), ctx.value("contact"), ctx.value("fusion")
@@ -138,6 +123,7 @@ def _evaluation_inputs(ctx: StageContext):
 
 
 def _residual_inputs(ctx: StageContext):
+    from service.bundle import assemble_model
     from service.residuals.types import ObservedTrajectory, ResidualInputs, RobotPath
 
     s, tr, co, fu = ctx.session, ctx.value("tracking"), ctx.value("contact"), ctx.value("fusion")
@@ -201,8 +187,12 @@ class StageResult:
 
 
 def stage_inputs(spec: StageSpec, refs: dict[str, ArtifactRef]) -> dict[str, str]:
-    """The input keys of a stage: the ingest artifact of its session and its upstream artifacts."""
-    return {"session": refs["ingest"].key, **{r: refs[r].key for r in spec.requires}}
+    """The input keys of a stage: the ingest artifact of its session, its upstream artifacts, and the code
+    version of the module holding its ``build_inputs`` (the mapping is part of what the stage computes)."""
+    from service.store import module_code_version
+
+    return {"session": refs["ingest"].key, **{r: refs[r].key for r in spec.requires},
+            "wiring": module_code_version(spec.build_inputs.__module__)}
 
 
 def run_cached(spec: StageSpec, ctx: StageContext, config: Any, *, progress: Callable[[float, str], None] | None = None

@@ -46,6 +46,14 @@ class BundleParts:
     missing: dict[str, str] = field(default_factory=dict)  # file -> reason it is absent
 
 
+def assemble_model(session, contact, mesh: Mesh, effects: dict | None = None) -> ObjectModel:
+    """The ObjectModel of one geometry (``mesh`` in O) with the mass, centre of mass, inertia and friction
+    learned by the contact stage (``ContactOutputs``) and the given accepted effects."""
+    return ObjectModel(visual=mesh, collision=(), mass=float(contact.mass), mass_declared=session.mass is not None,
+                       com_O=np.asarray(contact.com_O, float), inertia_O=np.asarray(contact.inertia_O, float),
+                       friction=contact.friction, effects=dict(effects or {}))
+
+
 def write_trajectory_csv(t: np.ndarray, X_WO: np.ndarray, path: Path) -> Path:
     """``t,x,y,z,qw,qx,qy,qz`` per frame (X_WO), quaternion sign canonical (w >= 0)."""
     t = np.asarray(t, float).reshape(-1)
@@ -119,6 +127,22 @@ def zip_folder(folder: Path, zip_path: Path) -> Path:
     return zip_path
 
 
+def _swap_into_place(tmp: Path, out_dir: Path) -> None:
+    """Rename the finished folder ``tmp`` to ``out_dir``, replacing a previous bundle there (never a folder
+    that holds something else)."""
+    if out_dir.exists():
+        if not out_dir.is_dir():
+            raise FileExistsError(f"{out_dir}: exists and is not a folder")
+        if any(out_dir.iterdir()) and not (out_dir / "report.json").is_file():
+            raise FileExistsError(f"{out_dir}: exists, is not empty and holds no bundle; refusing to replace it")
+        old = out_dir.with_name(f".{out_dir.name}.{uuid.uuid4().hex[:8]}.old")
+        os.rename(out_dir, old)
+        os.rename(tmp, out_dir)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.rename(tmp, out_dir)
+
+
 def write_bundle(parts: BundleParts, out_dir: Path, *, zip_path: Path | None = None) -> dict:
     """Write the bundle folder ``out_dir`` (replacing a previous bundle there) and, if asked, its zip.
 
@@ -131,17 +155,7 @@ def write_bundle(parts: BundleParts, out_dir: Path, *, zip_path: Path | None = N
         report = _fill(parts, tmp)
         if zip_path is not None:
             zip_folder(tmp, Path(zip_path))
-        if out_dir.exists():
-            if not out_dir.is_dir():
-                raise FileExistsError(f"{out_dir}: exists and is not a folder")
-            if any(out_dir.iterdir()) and not (out_dir / "report.json").is_file():
-                raise FileExistsError(f"{out_dir}: exists, is not empty and holds no bundle; refusing to replace it")
-            old = out_dir.with_name(f".{out_dir.name}.{uuid.uuid4().hex[:8]}.old")
-            os.rename(out_dir, old)
-            os.rename(tmp, out_dir)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.rename(tmp, out_dir)
+        _swap_into_place(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -155,17 +169,7 @@ def copy_bundle(src: Path, out_dir: Path) -> Path:
     tmp = out_dir.with_name(f".{out_dir.name}.{uuid.uuid4().hex[:8]}.tmp")
     shutil.copytree(src, tmp)
     try:
-        if out_dir.exists():
-            if not out_dir.is_dir():
-                raise FileExistsError(f"{out_dir}: exists and is not a folder")
-            if any(out_dir.iterdir()) and not (out_dir / "report.json").is_file():
-                raise FileExistsError(f"{out_dir}: exists, is not empty and holds no bundle; refusing to replace it")
-            old = out_dir.with_name(f".{out_dir.name}.{uuid.uuid4().hex[:8]}.old")
-            os.rename(out_dir, old)
-            os.rename(tmp, out_dir)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.rename(tmp, out_dir)
+        _swap_into_place(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -205,9 +209,7 @@ def parts_from_outputs(
     model = None
     model_reason = None
     if co is not None and fu is not None and not fu.mesh.is_empty:
-        model = ObjectModel(visual=fu.mesh, collision=(), mass=float(co.mass), mass_declared=session.mass is not None,
-                            com_O=np.asarray(co.com_O, float), inertia_O=np.asarray(co.inertia_O, float),
-                            friction=co.friction, effects=dict(rs.effects) if rs is not None else {})
+        model = assemble_model(session, co, fu.mesh, rs.effects if rs is not None else None)
     else:
         model_reason = next((f"{s}: {reasons[s]}" for s in ("contact", "fusion") if s in reasons),
                             "needs contact and fusion outputs")

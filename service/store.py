@@ -128,6 +128,11 @@ def stage_files(stage: str, service_dir: Path = SERVICE_DIR) -> tuple[Path, ...]
             todo.append((p, mod))
     elif (service_dir / f"{pkg}.py").is_file():
         todo.append((service_dir / f"{pkg}.py", f"service.{pkg}"))
+    return _closure(todo, service_dir)
+
+
+def _closure(todo: list[tuple[Path, str]], service_dir: Path) -> tuple[Path, ...]:
+    """The files of ``todo`` and every ``service`` module they import, transitively."""
     seen: dict[Path, str] = {}
     while todo:
         path, mod = todo.pop()
@@ -146,6 +151,24 @@ def stage_files(stage: str, service_dir: Path = SERVICE_DIR) -> tuple[Path, ...]
                     todo.append((pf, parent))
                 parent = parent.rpartition(".")[0]
     return tuple(sorted(seen))
+
+
+@lru_cache(maxsize=None)
+def module_code_version(module: str, service_dir: Path = SERVICE_DIR) -> str:
+    """sha256 of an importable module's file (e.g. ``flows.stages``, which maps stage outputs to the next
+    stage's inputs) and every ``service`` module it imports, transitively."""
+    import importlib.util
+
+    spec = importlib.util.find_spec(module)
+    if spec is None or not spec.origin:
+        raise ValueError(f"module {module!r} not found")
+    files = _closure([(Path(spec.origin), module)], service_dir)
+    base = service_dir.parent
+    h = hashlib.sha256()
+    for f in sorted(files):
+        h.update((f.relative_to(base).as_posix() if f.is_relative_to(base) else f.name).encode() + b"\0")
+        h.update(hashlib.sha256(f.read_bytes()).digest())
+    return h.hexdigest()
 
 
 @lru_cache(maxsize=None)

@@ -130,6 +130,10 @@ def test_second_run_hits_the_cache_and_config_change_recomputes(tmp_path):
     out = store.load(FakeOutputs, r1.ref)
     np.testing.assert_array_equal(out.y, np.arange(4.0) * 2)
     assert store.manifest(r1.ref)["metrics"] == {"sum": 12.0}
+    # the input builder's code is part of the key (it shapes what the stage computes)
+    from service.store import module_code_version
+
+    assert store.manifest(r1.ref)["inputs"]["wiring"] == module_code_version(__name__)
 
     r2 = run_cached(SPEC, _ctx(store), FakeConfig(scale=2.0))
     assert r2.cached and r2.ref == r1.ref and fake_stage.CALLS["n"] == 1
