@@ -144,7 +144,7 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
         occluder = None
         if target_occ > 0:
             report(0.25, "placing occluders")
-            occluder = calibrate_occluder(rend, obj, rec.X_WM, rec.frame_t, target_occ, rng_occ)
+            occluder = calibrate_occluder(rend, obj, rec.X_WM, rec.frame_t, target_occ, rng_occ, p_WE=rec.ee_frames)
         for sub in ("rgb", "depth", "masks", "ground_truth"):
             (tmp / sub).mkdir(parents=True)
         hidden = np.full(N, np.nan)

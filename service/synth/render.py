@@ -315,10 +315,29 @@ def hidden_fraction(visible: np.ndarray, unoccluded: np.ndarray) -> float:
     return 1.0 - float((visible & unoccluded).sum()) / n
 
 
+def arm_hidden_fractions(rend: Renderer, X_WM: np.ndarray, p_WE: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N,) fraction of the object hidden by the robot (sphere and arm) alone, per frame (nan: out of view)."""
+    out = np.full(len(t), np.nan)
+    for i in range(len(t)):
+        A = rend.object_only_mask(X_WM[i])
+        rend.pose_scene(X_WM[i], p_WE[i], float(t[i]), with_arm=True, with_occluder=False)
+        vis, win = rend.object_window_mask(X_WM[i])
+        if win is not None:
+            u0, v0, u1, v1 = win
+            out[i] = hidden_fraction(vis, A[v0:v1, u0:u1])
+    return out
+
+
 def calibrate_occluder(
-    rend: Renderer, obj: SynthObject, X_WM: np.ndarray, t: np.ndarray, target: float, rng: np.random.Generator, key_dt: float = 0.5
+    rend: Renderer, obj: SynthObject, X_WM: np.ndarray, t: np.ndarray, target: float, rng: np.random.Generator,
+    key_dt: float = 0.5, p_WE: np.ndarray | None = None,
 ) -> Occluder:
-    """Place one occluder so that alone it hides ``target`` of the object's pixels at key frames."""
+    """Place one occluder so that the object is ``target`` hidden at key frames.
+
+    With the robot path ``p_WE`` (N,3), the arm's own hidden fraction h_a (averaged over the key
+    interval) is accounted for: the occluder alone aims at 1 - (1 - target) / (1 - h_a), so that
+    occluder and arm together hide about ``target``.
+    """
     cam = rend.X_WC[:3, 3]
     kind = "post" if rng.random() < 0.5 else "wall"
     side = float(rng.choice([-1.0, 1.0]))
@@ -335,10 +354,17 @@ def calibrate_occluder(
     keys = list(range(0, n, step))
     if keys[-1] != n - 1:
         keys.append(n - 1)
+    key_target = {i: target for i in keys}
+    if p_WE is not None:
+        h_arm = np.nan_to_num(arm_hidden_fractions(rend, X_WM, p_WE, t), nan=0.0)
+        for i in keys:
+            h = float(h_arm[max(0, i - step // 2): i + step // 2 + 1].mean())
+            key_target[i] = float(np.clip(1.0 - (1.0 - target) / max(1.0 - h, 1e-3), 0.0, target))
     occ = Occluder(kind, he, np.zeros(1), np.zeros((1, 3)), np.zeros(1))
     rend.set_occluder(occ)
     key_pos, key_yaw = [], []
     for i in keys:
+        tgt = key_target[i]
         c = X_WM[i, :3, 3]
         u = cam[:2] - c[:2]
         u /= np.linalg.norm(u)
@@ -368,7 +394,7 @@ def calibrate_occluder(
             for _ in range(12):
                 mid = 0.5 * (lo + hi)
                 f = frac(mid)
-                if np.isnan(f) or f > target:
+                if np.isnan(f) or f > tgt:
                     lo = mid
                 else:
                     hi = mid
@@ -377,7 +403,7 @@ def calibrate_occluder(
             for _ in range(12):
                 mid = 0.5 * (lo + hi)
                 f = frac(mid)
-                if np.isnan(f) or f < target:
+                if np.isnan(f) or f < tgt:
                     lo = mid
                 else:
                     hi = mid
