@@ -73,6 +73,20 @@ class BulletSimulator:
         self._cid = pybullet.connect(pybullet.DIRECT)
         self.substep = float(sim_substep_s)
         self.margin = float(collision_margin)
+        self._hulls: dict = {}
+
+    def _hull_vertices(self, model: ObjectModel) -> np.ndarray:
+        """(H,3) convex-hull vertices of the collision pieces (visual mesh if none), cached per geometry."""
+        verts = [np.asarray(piece.vertices, float) for piece in model.collision if len(piece.vertices)]
+        V = np.concatenate(verts, 0) if verts else np.asarray(model.visual.vertices, float)
+        key = (V.shape, hash(V.tobytes()))
+        if key not in self._hulls:
+            if len(V) > 16:
+                from scipy.spatial import ConvexHull
+
+                V = V[ConvexHull(V).vertices]
+            self._hulls = {key: V}  # one geometry at a time is all the loop uses
+        return self._hulls[key]
 
     def close(self) -> None:
         if getattr(self, "_cid", None) is not None:
@@ -122,8 +136,7 @@ class BulletSimulator:
 
         moments, R_OI = _principal(model)
         com = np.asarray(model.com_O, float)
-        verts = [np.asarray(piece.vertices, float) for piece in model.collision if len(piece.vertices)]
-        V_O = np.concatenate(verts, 0) if verts else np.asarray(model.visual.vertices, float)
+        V_O = self._hull_vertices(model)
         V_I = (V_O - com) @ R_OI  # p_I = R_OIᵀ (p_O − c); one convex hull of all pieces
         shape = p.createCollisionShape(p.GEOM_MESH, vertices=V_I.tolist(), physicsClientId=cid)
         X_OI = make_X(R_OI, com)

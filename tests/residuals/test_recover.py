@@ -57,3 +57,21 @@ def test_plain_tosses_accept_nothing():
     assert out.effects == {}
     assert all(not c.accepted and c.reason.startswith("rejected") for c in out.candidates)
     assert out.model.effects == {}
+
+
+def test_plain_pushing_session_as_the_pipeline_passes_it():
+    """One 30 Hz pushing session, model with no collision pieces (only the fused visual mesh), robot path:
+    time blocks are held out, and with no hidden effect nothing is accepted."""
+    from tests.residuals.lab import push_session
+
+    base = cube_model(friction=(0.26, 0.15))
+    tr, path = push_session(base, {}, seed=3, noise_m=3e-4, strokes=5)
+    fine = base.visual.to_trimesh().subdivide().subdivide()
+    from service.mesh import Mesh
+
+    model = dataclasses.replace(base, collision=(), visual=Mesh.from_trimesh(fine))
+    cfg = dataclasses.replace(ResidualConfig.fast(), candidates=("friction_table", "clock_offset"))
+    out = run(ResidualInputs(model, (tr,), 0.0, robot=(path,)), cfg)
+    assert out.accepted == (), [c.reason for c in out.candidates]
+    assert {c.effect for c in out.candidates} == {"friction_table", "clock_offset"}
+    assert out.by_mode["rollout_before"]["robot_contact"]["frames"] > 0
