@@ -5,7 +5,7 @@ Error of a rollout segment s (frames k of the segment, open loop from the tracke
 (default: the object radius), so e is in metres.
 
 Every effect acts in some contact modes (gravity in free flight, restitution at impacts, the table
-offset at rest and while sliding, …); its fit and its test use only the frames of those modes (for
+offset at rest, …); its fit and its test use only the frames of those modes (for
 impact effects, every frame from the first impact of a block on), in blocks with >= 3 such frames.
 This keeps the contact chaos of unrelated frames out of both, and stops an effect from being
 accepted for soaking up errors it does not model (e.g. a low gravity softening impacts).
@@ -25,8 +25,8 @@ lower bound of mean(d), resampling held-out units (trajectories, or blocks for o
 p < α — robust to the few chaotic blocks where any tiny change flips a contact outcome; and (d) the
 fitted parameter is farther than its resolution from the no-effect value; and (e) the mean error over
 all frames of all held-out blocks does not grow (an effect that helps its own frames but hurts the
-rest is compensating for something else). The passing candidate with the largest mean improvement over all
-held-out blocks is accepted; the round repeats until none passes or ``max_effects`` are
+rest is compensating for something else). The passing candidate with the largest mean improvement
+on its own held-out frames is accepted; the round repeats until none passes or ``max_effects`` are
 accepted.
 """
 
@@ -47,7 +47,6 @@ from service.residuals.modes import FREE, IMPACT, classify, mode_statistics, obj
 from service.residuals.types import (
     MODES,
     EffectCandidate,
-    ObservedTrajectory,
     ResidualConfig,
     ResidualInputs,
     ResidualOutputs,
