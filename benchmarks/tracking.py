@@ -114,13 +114,19 @@ def run_one(kind: str, path: Path) -> dict:
     from service.transforms import X_inv, pose_errors, xyzquat_to_pose
 
     s = load_session(path, "bench") if kind == "synth" else real_session(path)
+    marks: dict[str, float] = {}
+
+    def progress(f: float, msg: str) -> None:
+        key = "tracking" if f <= 0.6 and not msg.startswith("visible") else ("sdf" if f <= 0.95 else "visible set")
+        marks[key] = time.perf_counter() - t0
+
     t0 = time.perf_counter()
-    out = run(TrackingInputs(s), TrackingConfig())
+    out = run(TrackingInputs(s), TrackingConfig(), progress=progress)
     wall = time.perf_counter() - t0
     rss_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
     res = {"session": s.name, "frames": s.n_frames, "wall_s": wall, "peak_rss_gb": rss_gb,
            "tracked": float(out.tracked.mean()), "visible_points": len(out.visible_points_O),
-           "load_avg": os.getloadavg()[0]}
+           "load_avg": os.getloadavg()[0], "marks_s": marks}
     if kind == "synth":
         gt = np.loadtxt(path / "ground_truth" / "poses.csv", delimiter=",", skiprows=1)
         X_WG = xyzquat_to_pose(gt[:, 1:8])
@@ -195,14 +201,18 @@ def main() -> None:
             print(f"{r['session']:28s} rot med {r['rot_med_deg']:.2f}° max {r['rot_max_deg']:.2f}° | "
                   f"trans med {r['trans_med_mm']:.2f} max {r['trans_max_mm']:.2f} mm | surface {r['surface_mean_mm']:.2f} mm "
                   f"(all vertices {r['surface_all_mean_mm']:.2f}, V {r['V_mean_mm']:.2f}) | tracked {r['tracked']:.2f} | "
-                  f"{r['wall_s']:.1f} s, {r['peak_rss_gb']:.2f} GB (load {r['load_avg']:.1f})")
+                  f"{r['wall_s']:.1f} s, {r['peak_rss_gb']:.2f} GB (load {r['load_avg']:.1f}; cumulative s {_m(r)})")
         else:
             print(f"{r['session']:28s} vs BundleSDF (frames 0287-0360 excluded): rot med {r['rot_med_deg']:.2f}° "
                   f"p90 {r['rot_p90_deg']:.2f}° max {r['rot_max_deg']:.2f}° | trans med {r['trans_med_mm']:.1f} "
                   f"p90 {r['trans_p90_mm']:.1f} max {r['trans_max_mm']:.1f} mm | tracked {r['tracked']:.2f} | "
                   f"mesh OBB {np.round(r['mesh_obb_extents_m'], 4).tolist()} m, V OBB "
                   f"{np.round(r['V_obb_extents_m'], 4).tolist()} m (cube 0.1048) | {r['wall_s']:.1f} s, "
-                  f"{r['peak_rss_gb']:.2f} GB (load {r['load_avg']:.1f})")
+                  f"{r['peak_rss_gb']:.2f} GB (load {r['load_avg']:.1f}; cumulative s {_m(r)})")
+
+
+def _m(r: dict) -> str:
+    return ", ".join(f"{k} {v:.0f}" for k, v in r.get("marks_s", {}).items())
 
 
 if __name__ == "__main__":

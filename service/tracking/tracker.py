@@ -53,6 +53,7 @@ class Keyframe:
     N_W: np.ndarray
     kp_O: np.ndarray
     desc: np.ndarray | None
+    kp_W: np.ndarray | None = None
 
 
 @dataclass
@@ -222,7 +223,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     tracked[0], frac[0], rmse[0] = True, 1.0, 0.0
     X_OW0 = X_inv(X[0])
     kf0 = Keyframe(0, X[0].copy(), o0.P_W[keep] @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.P_W[keep], o0.N_W[keep],
-                   o0.kp_W @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.desc)
+                   o0.kp_W @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.desc, o0.kp_W)
     keyframes = [kf0]
     model = ObjectModel.build(cfg.model_voxel, [(kf0.P_O, o0.N_W[keep] @ X_OW0[:3, :3].T)])
     last = [0]  # indices of tracked frames
@@ -279,7 +280,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             near = best.nn_dist < cfg.grow_dist
             X_OW = X_inv(X[i])
             kf = Keyframe(i, X[i].copy(), o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W[near], o.N_W[near],
-                          o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc)
+                          o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W)
             keyframes.append(kf)
             model = _model_from(keyframes, cfg.model_voxel)
         if i % 10 == 0:
@@ -296,6 +297,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                     kf.X_WO = r.X_WO
                     X_OW = X_inv(r.X_WO)
                     kf.P_O = kf.P_W @ X_OW[:3, :3].T + X_OW[:3, 3]
+                    kf.kp_O = kf.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3]
             model = _model_from(keyframes, cfg.model_voxel)
     if cfg.final_pass:
         for i in range(1, N):

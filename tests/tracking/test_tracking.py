@@ -80,3 +80,16 @@ def test_interpolate_untracked():
     Xi = interpolate_untracked(X, tracked)
     et, er = pose_errors(Xi, X)
     assert et.max() < 1e-12 and er.max() < 1e-9
+
+
+def test_plots(tracked_session, tmp_path):
+    from service.tracking import plots
+
+    _, s, out, X_WG, _ = tracked_session
+    fig = plots.pose_error_figure(out.t, out.X_WO, X_WG, out.tracked, path=tmp_path / "err.png")
+    assert (tmp_path / "err.png").stat().st_size > 1000 and len(fig.axes) == 2
+    plots.velocity_figure(out, path=tmp_path / "vel.png")
+    img = plots.overlay_frames(s, out, [0, s.n_frames - 1], path=tmp_path / "ov.png")
+    assert img.shape == (s.height, 2 * s.width, 3) and (tmp_path / "ov.png").is_file()
+    et, _ = plots.pose_errors_vs_reference(out.X_WO, X_WG)
+    assert et[0] < 1e-9
