@@ -119,7 +119,6 @@ def bundle_task(refs: dict[str, ArtifactRef], timings: dict[str, float], reasons
     key = store.key("bundle", inputs, {"export": cfg.export, "reasons": reasons})
     ref = store.get("bundle", key)
     cached = ref is not None
-    t0 = time.perf_counter()
     if ref is None:
         outputs = {s: store.load(STAGES[s].output_type(), refs[s]) for s in refs if s in STAGES}
 
@@ -128,8 +127,7 @@ def bundle_task(refs: dict[str, ArtifactRef], timings: dict[str, float], reasons
                                        export_config=cfg.export, plots_dir=folder / "figures")
             write_bundle(parts, folder / "bundle", zip_path=folder / "bundle.zip")
 
-        ref = store.put("bundle", key, write, inputs=inputs, config={"export": cfg.export, "reasons": reasons},
-                        timings={"bundle": time.perf_counter() - t0})
+        ref = store.put("bundle", key, write, inputs=inputs, config={"export": cfg.export, "reasons": reasons})
     seconds = float(store.manifest(ref)["timings_s"].get("bundle", 0.0))
     jobs.stage(job_id, "bundle", state=J.COMPLETED, fraction=1.0, cached=cached, seconds=seconds,
                message="cached" if cached else "done")

@@ -256,13 +256,17 @@ class ArtifactStore:
         extra: Mapping[str, Any] | None = None,
     ) -> ArtifactRef:
         """Store an artifact: ``write(folder)`` fills a temporary folder, the manifest goes in last, and the
-        folder is renamed to ``<stage>/<key>``. If another writer got there first, its artifact is kept."""
+        folder is renamed to ``<stage>/<key>``. If another writer got there first, its artifact is kept.
+        ``timings`` default to ``{stage: seconds write took}``."""
         final = self.path(stage, key)
         final.parent.mkdir(parents=True, exist_ok=True)
         tmp = final.parent / f".tmp-{key[:16]}-{uuid.uuid4().hex[:8]}"
         tmp.mkdir()
         try:
+            t0 = time.perf_counter()
             write(tmp)
+            if timings is None:  # default: how long ``write`` took, under the stage's name
+                timings = {stage: time.perf_counter() - t0}
             manifest = {
                 "stage": stage,
                 "key": key,

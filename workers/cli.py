@@ -18,7 +18,6 @@ import json
 import os
 import sys
 import threading
-import time
 from pathlib import Path
 
 EXIT_FAILED, EXIT_INVALID, EXIT_UNAVAILABLE = 1, 2, 3

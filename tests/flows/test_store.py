@@ -104,6 +104,7 @@ def test_concurrent_writer_keeps_first_artifact(tmp_path):
     store.put("demo", key, lambda f: (f / "who").write_text("first"), inputs={}, config={})
     store.put("demo", key, lambda f: (f / "who").write_text("second"), inputs={}, config={})
     assert (store.path("demo", key) / "who").read_text() == "first"
+    assert store.manifest(store.ref("demo", key))["timings_s"]["demo"] >= 0.0  # default: the write's time
     assert len(list((tmp_path / "artifacts" / "demo").iterdir())) == 1
 
 
