@@ -157,13 +157,15 @@ def fuse(
     s_vis = vis if len(vis) <= cfg.max_visible_points else vis[rng.choice(len(vis), cfg.max_visible_points, replace=False)]
     losses = PhysibleLosses(x_sp, l_sp, q_hc, b_hc, s_vis, cfg.weights, cfg.sdf.trunc, seed=cfg.seed)
 
+    init = visible_sdf
     if cfg.init == "hull":
         origin, voxel, shape = make_grid_geometry(bounds, cfg.sdf.resolution)
         pts = np.concatenate([vis, P]) if len(P) else vis
-        v0 = hull_sdf(pts, grid_points(origin, voxel, shape).reshape(-1, 3)).reshape(shape).astype(np.float32)
-        init = SdfGrid(origin_O=origin, voxel=voxel, values=v0)
-    else:
-        init = visible_sdf
+        try:
+            v0 = hull_sdf(pts, grid_points(origin, voxel, shape).reshape(-1, 3)).reshape(shape).astype(np.float32)
+            init = SdfGrid(origin_O=origin, voxel=voxel, values=v0)
+        except Exception:  # flat or degenerate point set (qhull): keep the visible start
+            pass
     t_prep = time.perf_counter() - t0
 
     def fit_progress(frac: float, msg: str) -> None:

@@ -130,3 +130,23 @@ def test_session_rays_filter_table_and_outliers(scene):
     assert 0 < len(surf_O) < n_plain
     # O and W differ by a translation only in this scene (z offset HALF[2] plus the frame's slide)
     assert np.all(surf_O[:, 2] + HALF[2] > 0.03 + CFG.table_clearance - 1e-3)
+
+
+def test_flat_view_without_contacts_falls_back_to_visible_start():
+    """One camera square to the +x face sees a flat patch: no hull exists, the visible grid is the start."""
+    from service.fusion import fuse
+    from service.sdf.grid import grid_points
+    from service.sdf.types import SdfGrid
+    from tests.fusion.scenes import box_sdf, camera_rays
+
+    rays = camera_rays(np.array([[0.4, 0.0, 0.0]]), n_px=24)
+    surf = rays.surface_points_O
+    assert len(surf) > 10 and np.ptp(surf[:, 0]) < 1e-9  # all on the plane x = +half_x
+    lo, voxel = -HALF - 0.03, 0.005
+    shape = tuple(int(n) for n in np.ceil(2 * (HALF + 0.03) / voxel) + 1)
+    values = box_sdf(grid_points(lo, voxel, shape).reshape(-1, 3)).reshape(shape).astype(np.float32)
+    visible = SdfGrid(lo, voxel, values)
+    cfg = dataclasses.replace(CFG, sdf=dataclasses.replace(CFG.sdf, steps=3))
+    out = fuse(rays, visible, np.zeros((0, 3)), np.zeros((0, 3)), None, cfg)
+    assert out.mesh.to_trimesh().is_watertight
+    assert chamfer(out.mesh, box_mesh()) < 0.004  # it kept the (here exact) visible start
