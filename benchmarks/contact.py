@@ -85,7 +85,7 @@ def bench_cube(args) -> dict:
         tr = [trajs[k] for k in sel]
         S = sum(len(X) - 1 for X in tr)
         cfg = ContactConfig(width=args.width, epochs=_epochs_for(S, args.batch, args.steps), batch_size=args.batch,
-                            seed=0, learn_friction=args.learn_friction)
+                            seed=0, learn_friction=args.learn_friction, w_pen=args.w_pen)
         t0 = time.perf_counter()
         out = run(_inputs(tr, dt, friction=Friction(mu, 0.15)), cfg)
         wall = time.perf_counter() - t0
@@ -122,7 +122,8 @@ def bench_tagslam(args) -> dict:
     for name in ("tagslam_toss_prism", "tagslam_toss_napkin"):
         trajs, ids, dt, meta = load_trajectories(DATA / name / "data.npz")
         S = sum(len(X) - 1 for X in trajs)
-        cfg = ContactConfig(width=args.width, epochs=_epochs_for(S, args.batch, args.steps), batch_size=args.batch)
+        cfg = ContactConfig(width=args.width, epochs=_epochs_for(S, args.batch, args.steps), batch_size=args.batch,
+                            w_pen=args.w_pen)
         mass = float(meta.get("values_in_source_urdf_bundlesdf_<obj>_mesh.urdf", {}).get("mass_kg", CUBE_MASS))
         t0 = time.perf_counter()
         out = run(_inputs(trajs, dt, mass=mass), cfg)
@@ -144,48 +145,80 @@ def bench_tagslam(args) -> dict:
     return res
 
 
-def bench_speed(args) -> dict:
-    """300 transitions at 30 Hz with a sphere that pushes the object (kinematic, synthetic states)."""
-    from service.contact.simulate import Body as _B, simulate
+def _push_session(kind: str, interaction: str, seed: int, n_frames: int = 300, fps: float = 30.0):
+    """Physics-only synthetic session (service.synth.sim, pybullet): states of the mesh frame M (= O) and the
+    sphere at the frame times; velocities by backward differences (as the tracking stage delivers them)."""
+    from service.synth.objects import make_object
+    from service.synth.sim import simulate as synth_simulate
+    from service.synth.types import HiddenEffects
+    from service.transforms import mat_to_quat, quat_make_continuous, so3_log
 
-    h = np.array([0.05, 0.04, 0.03])
-    from service.contact.inertia import solid_box_inertia
-
-    body = _B(box_vertices(h), 0.37, np.zeros(3), solid_box_inertia(h, 0.37), 0.26)
-    x0 = np.zeros(13)
-    x0[0] = 1
-    x0[6] = 0.03
-    x0[10] = 0.15
-    dt = 1 / 30
-    X = simulate(body, x0[None], 300, dt)[0]
-    # sphere trailing the object's -x face
-    ee = X[:, 4:7] + np.array([-(h[0] + 0.0195), 0.0, 0.0])
+    rng = np.random.default_rng(seed)
+    obj = make_object(kind)
+    rec = synth_simulate(obj, interaction=interaction, table_h=0.0, start_xy=np.array([0.5, 0.0]),
+                         start_yaw=float(rng.uniform(-np.pi, np.pi)), lateral=np.array([0.0, 1.0]), n_frames=n_frames,
+                         fps=fps, physics_hz=240.0, mu_ot=0.26, mu_or=0.15, effects=HiddenEffects(), rng=rng)
+    X = rec.X_WM
+    dt = 1.0 / fps
+    q = quat_make_continuous(mat_to_quat(X[:, :3, :3]))
+    p = X[:, :3, 3]
+    v = np.zeros_like(p)
+    v[1:] = np.diff(p, axis=0) / dt
+    w = np.zeros_like(p)
+    w[1:] = so3_log(np.swapaxes(X[:-1, :3, :3], -1, -2) @ X[1:, :3, :3]) / dt
+    v[0], w[0] = v[1], w[1]
+    S = np.concatenate([q, p, w, v], -1)
+    ee = rec.ee_frames
     ev = np.zeros_like(ee)
     ev[1:] = np.diff(ee, axis=0) / dt
     ev[0] = ev[1]
-    cfg = ContactConfig(epochs=args.epochs)
+    return obj, S, ee, ev, dt
+
+
+def bench_speed(args) -> dict:
+    """A 10 s push session at 30 Hz (300 transitions) with the sphere contact: wall time of ``run``."""
+    obj, S, ee, ev, dt = _push_session("baking_box", "push", 0)
+    cfg = ContactConfig(epochs=args.epochs, w_pen=args.w_pen)
     t0 = time.perf_counter()
-    out = run(_inputs([X], dt, ee=((ee,), (ev,))), cfg)
+    out = run(_inputs([S], dt, mass=obj.mass, ee=((ee,), (ev,))), cfg)
     wall = time.perf_counter() - t0
     m = out.metrics
-    print(f"300 transitions, {cfg.epochs} epochs, width {cfg.width}: {wall:.1f} s total "
-          f"({m['time_s_per_epoch']:.3f} s/epoch; solver {m['time_solver_s']:.1f} s, hull {m['time_hull_s']:.1f} s, "
-          f"forward/backward {m['time_forward_backward_s']:.1f} s; {m['time_transitions_solved_per_s']:.0f} transitions/s "
-          f"in the solver), torch threads {torch.get_num_threads()}")
+    print(f"{len(S) - 1} transitions, {cfg.epochs} epochs, width {cfg.width}: {wall:.1f} s total "
+          f"({m['time_s_per_epoch']:.3f} s/epoch; solver {m['time_solver_s']:.1f} s, hull+closest point "
+          f"{m['time_hull_s']:.1f} s, forward/backward {m['time_forward_backward_s']:.1f} s; "
+          f"{m['time_transitions_solved_per_s']:.0f} transitions/s in the solver), torch threads {torch.get_num_threads()}")
     return {"wall_s": wall, **m}
 
 
 def bench_synth(args) -> dict:
-    try:
-        import service.synth as synth  # noqa: F401
-
-        if not hasattr(synth, "make_session") and not hasattr(synth, "run"):
-            raise ImportError("service.synth has no session generator yet")
-    except ImportError as e:
-        print(f"synthetic push sessions: not available ({e})")
-        return {"available": False}
-    print("synthetic push sessions: generator present but not wired into this benchmark yet")
-    return {"available": True}
+    """Geometry error on the contacted faces: for every physible (point, direction) pair, |h_learned(n) − h_true(n)|
+    with h the support function (learned hull vs the true mesh, same frame)."""
+    res = {}
+    for kind, inter in [("baking_box", "push"), ("baking_box", "topple"), ("prism", "pivot")]:
+        obj, S, ee, ev, dt = _push_session(kind, inter, 1)
+        cfg = ContactConfig(epochs=args.epochs, w_pen=args.w_pen)
+        t0 = time.perf_counter()
+        out = run(_inputs([S], dt, mass=obj.mass, ee=((ee,), (ev,))), cfg)
+        wall = time.perf_counter() - t0
+        N = out.physible_normals_O
+        Vt = np.asarray(obj.mesh.vertices)
+        Vl = np.asarray(out.physible_mesh.vertices)
+        if len(N):
+            h_true = (N @ Vt.T).max(-1)
+            h_learn = (N @ Vl.T).max(-1)
+            err = np.abs(h_learn - h_true)
+            e_mean, e_med = float(err.mean()), float(np.median(err))
+        else:
+            e_mean = e_med = float("nan")
+        res[f"{kind}/{inter}"] = {"contacted_face_err_mean_mm": 1000 * e_mean, "median_mm": 1000 * e_med,
+                                  "physible_pairs": int(len(N)), "wall_s": wall,
+                                  "learned_extents_m": np.ptp(Vl, axis=0).tolist(),
+                                  "true_extents_m": np.ptp(Vt, axis=0).tolist()}
+        print(f"{kind}/{inter}: contacted-face support error mean {1000 * e_mean:.1f} mm (median {1000 * e_med:.1f} mm) "
+              f"over {len(N)} physible pairs; extents learned {np.round(np.ptp(Vl, axis=0), 3)} true "
+              f"{np.round(np.ptp(Vt, axis=0), 3)} ({wall:.0f} s)")
+        sys.stdout.flush()
+    return res
 
 
 def main() -> None:
@@ -198,6 +231,7 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=200)
     ap.add_argument("--width", type=int, default=64)
     ap.add_argument("--mu", type=float, default=0.26)
+    ap.add_argument("--w-pen", type=float, default=50.0, help="penetration weight (PLL: 0.5; see docs/contact.md)")
     ap.add_argument("--learn-friction", action="store_true")
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="write the figures as JSON")

@@ -133,10 +133,11 @@ def fit_trajectories(npz_path: Path, *, out_dir: Path, cfg: ContactConfig | None
     """Learn geometry and inertia from object trajectories without video (tosses; no end effector).
 
     Writes ``physible.obj``, ``inertia.json``, ``report.json`` and ``report.png`` into ``out_dir``.
-    ``train_ids`` selects trajectories by id (default: all). Returns (outputs, report dict)."""
+    ``train_ids`` selects trajectories by id (default: all); ``cfg`` defaults to ``ContactConfig.tosses()``.
+    Returns (outputs, report dict)."""
     from service.contact.fit import run
 
-    cfg = cfg or ContactConfig()
+    cfg = cfg or ContactConfig.tosses()
     trajs, ids, dt, meta = load_trajectories(Path(npz_path))
     if train_ids is not None:
         want = set(int(i) for i in train_ids)

@@ -59,6 +59,12 @@ def train(model: ContactModel, tr: Transitions, dt: float, cfg: ContactConfig, *
     geo = [p for p in model.geometry.parameters() if p.requires_grad]
     other = [p for n, p in model.named_parameters() if p.requires_grad and not n.startswith("geometry.")]
     opt = torch.optim.Adam([{"params": geo, "lr": cfg.lr}, {"params": other, "lr": cfg.lr_inertia}])
+    n_batches = max(1, -(-len(tr) // cfg.batch_size))
+    total_steps = max(1, cfg.epochs * n_batches)
+    # cosine decay to lr_final_fraction·lr: the loss has a kink at the true surface (complementarity penalises
+    # shrinking much more than penetration penalises growing), so constant-lr Adam noise drifts outward
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        opt, lambda k: cfg.lr_final_fraction + (1 - cfg.lr_final_fraction) * 0.5 * (1 + np.cos(np.pi * min(k, total_steps) / total_steps)))
     S = len(tr)
     V = None if visible_points is None or len(visible_points) == 0 else torch.as_tensor(visible_points, dtype=torch.float64)
     need_hull = tr.ee_p is not None or V is not None
@@ -90,9 +96,10 @@ def train(model: ContactModel, tr: Transitions, dt: float, cfg: ContactConfig, *
             opt.zero_grad()
             loss.backward()
             opt.step()
+            sched.step()
             t_solver += res.solver_time
             n_solved += len(idx)
-            tot += float(loss) * len(idx)
+            tot += float(loss.detach()) * len(idx)
             cnt += len(idx)
             t_total += time.perf_counter() - t0
         ep_loss = tot / max(cnt, 1)

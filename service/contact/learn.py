@@ -269,8 +269,8 @@ def contact_loss(model: ContactModel, batch: Transitions, dt: float, w: LossWeig
     with torch.no_grad():
         dv_obs = batch.nu_next - batch.nu - dt * torch.linalg.solve(M, F.unsqueeze(-1)).squeeze(-1)
         dv_exp = torch.linalg.solve(M, (cs.J.transpose(-1, -2) @ lam.unsqueeze(-1))).squeeze(-1)
-    terms = {"pred": float(L_pred.mean()), "comp": float(L_comp.mean()), "diss": float(L_diss.mean()),
-             "pen": float(L_pen.mean())}
+    terms = {k: float(v.detach().mean()) for k, v in (("pred", L_pred), ("comp", L_comp), ("diss", L_diss),
+                                                     ("pen", L_pen))}
     return BatchResult(loss, per.detach(), lam, valid, cs, dv_obs, dv_exp, terms, st, res.iters)
 
 

@@ -29,6 +29,17 @@ class Body:
     mu_table: float
 
 
+def merge_vertices(V: np.ndarray, tol: float = 0.003) -> np.ndarray:
+    """Greedy merge of vertices closer than ``tol`` (a learned hull has clusters of support points at its
+    corners; without merging the ``n_contacts`` lowest vertices can all sit in one corner)."""
+    V = np.asarray(V, float)
+    keep: list[np.ndarray] = []
+    for v in V[np.argsort(V[:, 2])]:
+        if not keep or np.min(np.linalg.norm(np.asarray(keep) - v, axis=-1)) > tol:
+            keep.append(v)
+    return np.asarray(keep)
+
+
 def box_vertices(half_extents) -> np.ndarray:
     h = np.asarray(half_extents, float)
     s = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
@@ -94,9 +105,12 @@ def rollout_errors(sim: np.ndarray, true: np.ndarray) -> tuple[np.ndarray, np.nd
 
 
 def rollout_trajectories(body: Body, trajs, dt: float, *, n_contacts: int = 8, table_height: float = 0.0,
-                         substeps: int = 1) -> dict:
-    """Simulate each trajectory from its first state for its length; mean position/rotation errors."""
+                         substeps: int = 1, merge_tol: float = 0.003) -> dict:
+    """Simulate each trajectory from its first state for its length; mean position/rotation errors.
+    Vertices closer than ``merge_tol`` are merged first (see ``merge_vertices``)."""
     trajs = [np.asarray(X, float) for X in trajs]
+    if merge_tol > 0:
+        body = Body(merge_vertices(body.vertices_O, merge_tol), body.mass, body.com_O, body.inertia_O, body.mu_table)
     T = max(len(X) for X in trajs)
     x0 = np.stack([X[0] for X in trajs])
     x0[:, 6] -= table_height

@@ -92,12 +92,20 @@ class ContactConfig:
     batch_size: int = 200
     lr: float = 2e-3  # deep support function weights (PLL)
     lr_inertia: float = 5e-3  # CoM (m per step scale), log-Cholesky moments, friction
+    lr_final_fraction: float = 0.05  # cosine decay of both learning rates to this fraction (PLL: constant)
     solver_max_iters: int = 100
     solver_eps_rel: float = 1e-4
     warm_start: bool = True
     # physible set
     physible_fraction: float = 0.3
     max_physible_points: int = 20000
+
+    @classmethod
+    def tosses(cls, **kw) -> "ContactConfig":
+        """Preset for object-only trajectories (tosses): penetration weight 50 instead of PLL's 0.5. With 0.5 the
+        loss has a steep wall on the inside of the true surface (complementarity) and an almost flat one outside
+        (penetration), and the learned shapes come out 10-30 % too large (docs/contact.md)."""
+        return cls(**{"w_pen": 50.0, **kw})
 
     @classmethod
     def fast(cls) -> "ContactConfig":

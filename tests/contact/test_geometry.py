@@ -77,10 +77,10 @@ def test_closest_point_matches_trimesh():
 
 
 def test_pretrain_fits_a_box():
-    net = HomogeneousICNN(64, 0.1, torch.Generator().manual_seed(0))
+    net = HomogeneousICNN(32, 0.1, torch.Generator().manual_seed(0))
     h = np.array([0.04, 0.03, 0.02])
     torch.manual_seed(0)
-    err = pretrain_to_points(net, box_vertices(h), steps=300)
+    err = pretrain_to_points(net, box_vertices(h), steps=200, n_dirs=300)
     mesh, _ = export_mesh(net, cube_surface_directions(8))
     half = 0.5 * np.ptp(mesh.vertices, axis=0)
     assert err < 2e-3

@@ -34,10 +34,10 @@ def test_projection_is_the_euclidean_projection():
 
 def test_matches_slsqp_single_cone_strictly_convex():
     rng = np.random.default_rng(1)
-    P, q = _instances(rng, 30, 1, 3)
+    P, q = _instances(rng, 12, 1, 3)
     P = P + 0.1 * np.eye(3)
     res = solve_cone_qp(torch.tensor(P), torch.tensor(q), SolverSettings(max_iters=2000, eps_rel=1e-9, eps_abs=1e-12))
-    for b in range(30):
+    for b in range(12):
         cons = [{"type": "ineq", "fun": lambda x: x[0] - np.sqrt(x[1] ** 2 + x[2] ** 2 + 1e-16)}]
         r = minimize(lambda x: 0.5 * x @ P[b] @ x + q[b] @ x, np.array([1.0, 0, 0]), jac=lambda x: P[b] @ x + q[b],
                      constraints=cons, method="SLSQP", options={"ftol": 1e-14, "maxiter": 500})
@@ -53,7 +53,7 @@ def test_matches_clarabel(nc, rank):
     import scipy.sparse as sp
 
     rng = np.random.default_rng(nc * 10 + rank)
-    B, n = 25, 3 * nc
+    B, n = 12, 3 * nc
     P, q = _instances(rng, B, nc, rank)
     res = solve_cone_qp(torch.tensor(P), torch.tensor(q), SolverSettings(max_iters=3000, eps_rel=1e-8, eps_abs=1e-11))
     f = objective(torch.tensor(P), torch.tensor(q), res.x).numpy()
