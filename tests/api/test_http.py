@@ -192,3 +192,23 @@ def test_importing_the_api_does_not_import_torch():
             "print(bad); sys.exit(1 if bad else 0)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_failed_job_status_and_results(server):
+    from flows.jobs import JobStore, new_job
+
+    client, data = server
+    jid = "f" * 64
+    jobs = JobStore(data / "jobs")
+    job = new_job(jid, session_sha256=jid, name="broken", frames=3, preset="fast")
+    job["state"] = "running"  # never queued: the runner must not pick it up
+    jobs.put(job)
+    jobs.fail(jid, "contact", "no contact between the robot and the object in any frame")
+    st = client.get(f"/v1/sessions/{jid}").json()
+    assert st["state"] == "failed"
+    assert st["error"] == {"stage": "contact", "reason": "no contact between the robot and the object in any frame"}
+    assert st["stages"]["contact"]["state"] == "failed"
+    for what in ("bundle", "report"):
+        r = client.get(f"/v1/sessions/{jid}/{what}")
+        assert r.status_code == 409 and r.headers["content-type"].startswith(PROBLEM)
+        assert r.json()["stage"] == "contact" and "no contact" in r.json()["detail"]
