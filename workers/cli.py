@@ -191,7 +191,32 @@ def cmd_run(a: argparse.Namespace) -> int:
     if not session.exists():
         _err(f"{session}: no such file or folder")
         return EXIT_INVALID
-    config = json.loads(Path(a.config).read_text()) if a.config else None
+    config = None
+    if a.config:
+        try:
+            config = json.loads(Path(a.config).read_text())
+        except OSError as e:
+            _err(f"{a.config}: cannot read ({e.strerror})")
+            return EXIT_INVALID
+        except ValueError as e:
+            _err(f"{a.config}: invalid JSON ({e})")
+            return EXIT_INVALID
+        if not isinstance(config, dict):
+            _err(f"{a.config}: expected a JSON object of per-stage overrides")
+            return EXIT_INVALID
+    try:  # refuse a bad configuration before anything starts
+        from flows.stages import select_stages
+        from service.config import PipelineConfig
+
+        PipelineConfig.from_dict({**(config or {}), **({"preset": a.preset} if a.preset else {})})
+    except ValueError as e:
+        _err(f"{a.config or '--preset'}: {e}")
+        return EXIT_INVALID
+    try:
+        select_stages(a.stages)
+    except ValueError as e:
+        _err(f"--stages: {e}")
+        return EXIT_INVALID
     try:
         res = process(session, out=Path(a.out), data_dir=data_dir, preset=a.preset, config=config, quiet=a.quiet,
                       stages=a.stages)

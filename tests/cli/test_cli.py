@@ -86,3 +86,19 @@ def test_fit_dynamics_missing_file(tmp_path, capsys):
     rc = main(["fit-dynamics", str(tmp_path / "none.npz"), "--out", str(tmp_path / "o")])
     assert rc in (2, 3)
     assert capsys.readouterr().err.strip()
+
+
+def test_run_bad_config_and_stages(session, tmp_path, capsys):
+    folder, _ = session
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text("{nope")
+    args = ["run", str(folder), "--out", str(tmp_path / "o"), "--data-dir", str(tmp_path / "d"), "--quiet"]
+    assert main(args + ["--config", str(cfg)]) == 2
+    assert capsys.readouterr().err.startswith(f"{cfg}: invalid JSON")
+    cfg.write_text('{"tracking": {"no_such_field": 1}}')
+    assert main(args + ["--config", str(cfg)]) == 2
+    assert "no_such_field" in capsys.readouterr().err
+    assert main(args + ["--stages", "tracking,warp"]) == 2
+    assert "warp" in capsys.readouterr().err
+    assert main(["run", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
+    assert "no such file" in capsys.readouterr().err
