@@ -58,7 +58,14 @@ def plot_trajectories(series: dict, path: Path) -> Path | None:
         ax1.plot(p[:, 0], p[:, 1], color=c, lw=1.3, label=LABELS.get(m, m))
         ax2.plot(t, p[:, 2], color=c, lw=1.3, label=LABELS.get(m, m))
     ax1.set(xlabel="x (m)", ylabel="y (m)", title="object position, top view")
-    ax1.set_aspect("equal", adjustable="datalim")
+    if tr is not None and np.isfinite(tr[:, :2]).any():
+        # frame the tracked motion (a rollout that runs away leaves the frame instead of shrinking it)
+        lo, hi = np.nanmin(tr[:, :2], 0), np.nanmax(tr[:, :2], 0)
+        c, half = 0.5 * (lo + hi), max(0.15, 0.75 * float((hi - lo).max()))
+        ax1.set(xlim=(c[0] - half, c[0] + half), ylim=(c[1] - half, c[1] + half))
+        ax1.set_aspect("equal", adjustable="box")
+    else:
+        ax1.set_aspect("equal", adjustable="datalim")
     ax2.set(xlabel="t (s)", ylabel="z (m)", title="object height")
     ax1.legend(fontsize=8)
     return _save(fig, path)
