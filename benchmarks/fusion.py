@@ -7,6 +7,14 @@ estimate of the wall time on an idle one) and the chamfer distance (two-way mean
 meshes to the true box, plus, with --compare, the sampling-extent and initialisation variants.
 
     /work/venv/bin/python benchmarks/fusion.py [--frames 300] [--compare]
+
+With ``--data DIR --sha SHA`` it instead reruns fusion variants on a session already processed by the
+flow (``DIR`` = the flow's data folder holding ``sessions/`` and ``artifacts/``; the newest stored tracking
+and contact outputs are used) and scores each fused mesh with ``service.evaluation`` against the
+session's ground truth, as the report does:
+
+    /work/venv/bin/python benchmarks/pipeline.py --work W --preset fast     # process a synthetic session
+    /work/venv/bin/python benchmarks/fusion.py --data W/data --sha <session sha256>
 """
 
 from __future__ import annotations
@@ -36,13 +44,61 @@ def face_errors(grid) -> str:
     return ", ".join(out)
 
 
+def stored_session(data: Path, sha: str) -> None:
+    """Fusion variants on a processed session, scored against its ground truth by service.evaluation."""
+    from service.contact.types import ContactOutputs
+    from service.evaluation.ground_truth import load_ground_truth
+    from service.evaluation.run import geometry_metrics, tracking_metrics
+    from service.evaluation.types import EvaluationConfig, EvaluationInputs
+    from service.io import load_value
+    from service.session.ingest import load_session
+    from service.tracking.types import TrackingOutputs
+
+    root = data / "sessions" / sha
+    session = load_session(root, sha)
+
+    def newest(stage: str) -> Path:
+        return max((data / "artifacts" / stage).glob("*/value"), key=lambda p: p.stat().st_mtime)
+
+    tr = load_value(TrackingOutputs, newest("tracking"))
+    co = load_value(ContactOutputs, newest("contact"))
+    gt = load_ground_truth(root)
+    _, _, X_OG = tracking_metrics(EvaluationInputs(session, tr.t, tr.X_WO, tr.tracked, {}, {}), gt)
+    ecfg = EvaluationConfig.fast()
+
+    def score(name: str, mesh, extra: str = "") -> None:
+        g = geometry_metrics({name: mesh}, gt, X_OG, ecfg)[0][name]
+        print(f"{name}: chamfer {1000 * g['chamfer_m']:.1f} mm, IoU {g['iou']:.3f}, volume {1e6 * g['volume_m3']:.0f} cm3 "
+              f"(true {1e6 * g['volume_true_m3']:.0f}){extra}", flush=True)
+
+    print(f"session {session.name}: {session.n_frames} frames, {len(co.physible_points_O)} physible points")
+    score("vision_only", tr.visible_mesh)
+    score("physics_only", co.physible_mesh)
+    inputs = FusionInputs(session, tr.X_WO, tr.tracked, tr.sdf, co.physible_points_O, co.physible_normals_O,
+                          co.physible_mesh)
+    base = FusionConfig()
+    for name, cfg in [
+        ("fused, default", base),
+        ("fused, final-code extents", dataclasses.replace(base, extents=SampleExtents.final_code())),
+        ("fused, visible start", dataclasses.replace(base, init="visible")),
+    ]:
+        c0 = time.process_time()
+        out = run(inputs, cfg)
+        score(name, out.mesh, f", {time.process_time() - c0:.1f} s CPU")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
+    ap.add_argument("--data", type=Path, help="flow data folder of a processed session (with --sha)")
+    ap.add_argument("--sha", help="sha256 of the processed session")
     ap.add_argument("--frames", type=int, default=300)
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=480)
     ap.add_argument("--compare", action="store_true", help="also run the extent and init variants")
     args = ap.parse_args()
+    if args.data is not None:
+        stored_session(args.data, args.sha)
+        return
     truth = box_mesh()
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
