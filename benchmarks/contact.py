@@ -14,7 +14,10 @@ cube:    148 Hz ContactNets cube tosses, no vision term. The shared ids are spli
 tagslam: 30 Hz TagSLAM tosses of the prism and the napkin box: chamfer distance (two-way mean, 2000 surface
          samples each, cm) of the learned hull to the ground-truth mesh in the trajectories' body frame
          (no alignment; the meta says the gt frame agrees to 1-2 cm), and after centring both meshes.
-speed:   a 10 s session at 30 Hz (300 transitions) with the end-effector sphere contact, default config.
+speed:   a 10 s push session at 30 Hz (299 transitions) with the end-effector sphere contact.
+synth:   synthetic push sessions (service.synth physics only): support-function error on the contacted faces.
+
+Loss weights: PLL's, except the penetration weight ``--w-pen`` (default 50 = ``ContactConfig.tosses()``).
 """
 
 from __future__ import annotations
