@@ -89,3 +89,28 @@ def test_inputs_from_tracking_splits_at_lost_frames():
     assert abs(inp.dt - 1 / 30) < 1e-12 and inp.table_height == 0.01
     inp2 = inputs_from_tracking(_Session(pe), tro, np.zeros((5, 3)), 0.5)
     assert inp2.mass == 0.5 and inp2.mass_declared and inp2.visible_points_O.shape == (5, 3)
+
+
+def test_fit_trajectories_writes_the_outputs(tmp_path):
+    from service.contact.data import fit_trajectories
+    from service.contact.types import ContactConfig
+
+    from .synthetic import tosses
+
+    tr = tosses(2, 12, 0.01, seed=3)
+    S = np.concatenate(tr)
+    off = np.array([0, len(tr[0]), len(S)])
+    p = _write(tmp_path, S, off, meta={"dt_s": 0.01, "name": "tiny"}, ids=np.array([7, 9]))
+    cfg = ContactConfig.tosses(width=16, epochs=2, pretrain_steps=20, export_grid=5)
+    out, report = fit_trajectories(p, out_dir=tmp_path / "out", cfg=cfg, train_ids=[9])
+    for f in ("physible.obj", "inertia.json", "report.json", "report.png"):
+        assert (tmp_path / "out" / f).is_file()
+    inertia = json.loads((tmp_path / "out" / "inertia.json").read_text())
+    assert inertia["mass_kg"] == 0.37 and inertia["mass_declared"] is False and "default" in inertia["mass_note"]
+    assert np.linalg.eigvalsh(np.array(inertia["inertia_O_kg_m2"])).min() > 0
+    n = len(tr[1]) - 1
+    assert report["train_ids"] == [9] and report["transitions"] == n
+    assert len(out.residuals.traj) == n and out.residuals.residual.shape == (n, 6)
+    assert np.allclose(out.residuals.residual, out.residuals.dv_observed - out.residuals.dv_explained)
+    with pytest.raises(InvalidInput, match="train_ids"):
+        fit_trajectories(p, out_dir=tmp_path / "out2", cfg=cfg, train_ids=[1])
