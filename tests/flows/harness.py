@@ -54,6 +54,12 @@ def tiny_session(folder: Path, *, frames: int = 6, seed: int = 0) -> Path:
 def stop_prefect_api() -> None:
     global _SERVER
     if _SERVER is not None:
+        try:  # ship pending run logs while the API still listens
+            from prefect.logging.handlers import APILogWorker
+
+            APILogWorker.drain_all(timeout=30)
+        except Exception:  # noqa: BLE001 - best effort at the end of the test run
+            pass
         _SERVER.stop()
         _SERVER = None
 
