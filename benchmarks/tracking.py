@@ -15,7 +15,8 @@ frozen frames 0287–0360, and the cube's size from the oriented box of the visi
     /work/venv/bin/python benchmarks/tracking.py --one DIR       # one synthetic session folder
 
 Each session runs in a fresh process so that its peak RSS (resource.getrusage) is its own. Timings on a shared
-machine are inflated; the load average is printed next to them. Never fails on a target: it prints figures.
+machine are inflated; the load average and the process CPU time (≈ the wall time on an idle machine, the stage
+being single-threaded) are printed next to them. Never fails on a target: it prints figures.
 """
 
 from __future__ import annotations
@@ -62,7 +63,7 @@ def table_frame(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, seed: int = 
     n, a = best
     inl = np.abs((P - a) @ n) < 0.005
     c = P[inl].mean(0)
-    n = np.linalg.svd(P[inl] - c)[2][2]
+    n = np.linalg.svd(P[inl] - c, full_matrices=False)[2][2]
     if n @ (-c) < 0:
         n = -n  # toward the camera
     foot = np.zeros(3) - ((np.zeros(3) - c) @ n) * n
@@ -120,11 +121,15 @@ def run_one(kind: str, path: Path) -> dict:
         key = "tracking" if f <= 0.6 and not msg.startswith("visible") else ("sdf" if f <= 0.95 else "visible set")
         marks[key] = time.perf_counter() - t0
 
+    ru0 = resource.getrusage(resource.RUSAGE_SELF)
+    cpu0 = ru0.ru_utime + ru0.ru_stime
     t0 = time.perf_counter()
     out = run(TrackingInputs(s), TrackingConfig(), progress=progress)
     wall = time.perf_counter() - t0
+    ru = resource.getrusage(resource.RUSAGE_SELF)
+    cpu = ru.ru_utime + ru.ru_stime - cpu0
     rss_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
-    res = {"session": s.name, "frames": s.n_frames, "wall_s": wall, "peak_rss_gb": rss_gb,
+    res = {"session": s.name, "frames": s.n_frames, "wall_s": wall, "cpu_s": cpu, "peak_rss_gb": rss_gb,
            "tracked": float(out.tracked.mean()), "visible_points": len(out.visible_points_O),
            "load_avg": os.getloadavg()[0], "marks_s": marks}
     if kind == "synth":
@@ -201,13 +206,14 @@ def main() -> None:
             print(f"{r['session']:28s} rot med {r['rot_med_deg']:.2f}° max {r['rot_max_deg']:.2f}° | "
                   f"trans med {r['trans_med_mm']:.2f} max {r['trans_max_mm']:.2f} mm | surface {r['surface_mean_mm']:.2f} mm "
                   f"(all vertices {r['surface_all_mean_mm']:.2f}, V {r['V_mean_mm']:.2f}) | tracked {r['tracked']:.2f} | "
-                  f"{r['wall_s']:.1f} s, {r['peak_rss_gb']:.2f} GB (load {r['load_avg']:.1f}; cumulative s {_m(r)})")
+                  f"wall {r['wall_s']:.1f} s, CPU {r['cpu_s']:.1f} s, {r['peak_rss_gb']:.2f} GB (load {r['load_avg']:.1f}; "
+                  f"cumulative wall s {_m(r)})")
         else:
             print(f"{r['session']:28s} vs BundleSDF (frames 0287-0360 excluded): rot med {r['rot_med_deg']:.2f}° "
                   f"p90 {r['rot_p90_deg']:.2f}° max {r['rot_max_deg']:.2f}° | trans med {r['trans_med_mm']:.1f} "
                   f"p90 {r['trans_p90_mm']:.1f} max {r['trans_max_mm']:.1f} mm | tracked {r['tracked']:.2f} | "
                   f"mesh OBB {np.round(r['mesh_obb_extents_m'], 4).tolist()} m, V OBB "
-                  f"{np.round(r['V_obb_extents_m'], 4).tolist()} m (cube 0.1048) | {r['wall_s']:.1f} s, "
+                  f"{np.round(r['V_obb_extents_m'], 4).tolist()} m (cube 0.1048) | wall {r['wall_s']:.1f} s, CPU {r['cpu_s']:.1f} s, "
                   f"{r['peak_rss_gb']:.2f} GB (load {r['load_avg']:.1f}; cumulative s {_m(r)})")
 
 
