@@ -121,6 +121,11 @@ class ResidualConfig:
         return cls(fit_maxiter=16, n_bootstrap=500, max_train_segments=6, max_heldout_segments=64, max_effects=2)
 
 
+def _num(x: float) -> float | None:
+    """A finite float, or None (strict JSON has no NaN)."""
+    return float(x) if x is not None and np.isfinite(x) else None
+
+
 @dataclass(frozen=True)
 class EffectCandidate:
     effect: str  # e.g. "restitution"
@@ -159,14 +164,14 @@ class ResidualOutputs:
                 {
                     "effect": c.effect,
                     "params": dict(c.params),
-                    "heldout_error_before": c.heldout_error_before,
-                    "heldout_error_after": c.heldout_error_after,
+                    "heldout_error_before": _num(c.heldout_error_before),
+                    "heldout_error_after": _num(c.heldout_error_after),
                     "accepted": c.accepted,
                     "reason": c.reason,
-                    "signature": None if not np.isfinite(c.signature) else c.signature,
+                    "signature": _num(c.signature),
                     "round": c.round,
-                    "heldout_all_before": c.heldout_all_before,
-                    "heldout_all_after": c.heldout_all_after,
+                    "heldout_all_before": _num(c.heldout_all_before),
+                    "heldout_all_after": _num(c.heldout_all_after),
                     "blocks": dict(c.blocks),
                 }
                 for c in self.candidates
