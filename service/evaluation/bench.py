@@ -103,19 +103,24 @@ def _write_csv(path: Path, header: list[str], rows: list[list]) -> Path:
 
 
 def _fmt(v, digits=2) -> str:
+    if isinstance(v, (int, np.integer)) and not isinstance(v, bool):
+        return str(v)
     return "—" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{v:.{digits}f}"
 
 
-def _write_md(path: Path, title: str, header: list[str], rows: list[list], best: str | None = None) -> Path:
-    """Markdown table; with ``best`` = "min"/"max", the best method per column is bold."""
+def _write_md(path: Path, title: str, header: list[str], rows: list[list], best=None,
+              reference_rows: tuple[str, ...] = ()) -> Path:
+    """Markdown table; ``best`` = "min"/"max" (every column) or a list of those / None per column: the best
+    method of a column is bold (rows named in ``reference_rows`` take no part)."""
     cols = list(zip(*[r[1:] for r in rows])) if rows else []
+    per_col = best if isinstance(best, (list, tuple)) else [best] * len(cols)
     bold = set()
-    if best and rows:
-        for j, col in enumerate(cols):
-            vals = [v for v in col if v is not None and np.isfinite(v)]
-            if vals:
-                target = min(vals) if best == "min" else max(vals)
-                bold |= {(i, j) for i, v in enumerate(col) if v == target}
+    ranked = [i for i, r in enumerate(rows) if r[0] not in reference_rows]
+    for j, col in enumerate(cols):
+        vals = [col[i] for i in ranked if col[i] is not None and np.isfinite(col[i])]
+        if vals and per_col[j]:
+            target = min(vals) if per_col[j] == "min" else max(vals)
+            bold |= {(i, j) for i in ranked if col[i] == target}
     lines = [f"### {title}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for i, r in enumerate(rows):
         cells = [f"**{_fmt(v)}**" if (i, j) in bold else _fmt(v) for j, v in enumerate(r[1:])]
@@ -154,9 +159,11 @@ def _tables(rows: list[dict], out_dir: Path) -> dict[str, Path]:
             continue
         vals = [_mean([r[k] for r in sel]) for k in DYN_KEYS]
         vals[0] = None if vals[0] is None else 100 * vals[0]
-        table.append([m] + vals + [float(len(sel))])
+        table.append([m] + vals + [len(sel)])
     out["dynamics_csv"] = _write_csv(out_dir / "table_dynamics.csv", header, table)
-    out["dynamics_md"] = _write_md(out_dir / "table_dynamics.md", "Open-loop dynamics (means over sessions)", header, table)
+    out["dynamics_md"] = _write_md(out_dir / "table_dynamics.md", "Open-loop dynamics (means over sessions; "
+                                   "true geometry is the reference, not a competitor)", header, table,
+                                   ["min", "min", "max", "max", "max", None], reference_rows=("ground_truth_geometry",))
     return out
 
 

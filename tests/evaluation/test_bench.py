@@ -68,3 +68,18 @@ def test_default_specs_cover_every_object_kind():
     assert {s.object for s in specs} == set(OBJECT_KINDS)
     assert {s.interaction for s in specs} == {"push", "pivot", "topple"}
     assert all(s.occlusion == "heavy" for s in specs) and len(specs) == 2 * len(OBJECT_KINDS)
+
+
+def test_dynamics_table_bolds_the_best_competitor_only(tmp_path):
+    make_dirs(tmp_path / "s", ["egg_push_000"])
+
+    def process(d):
+        rep = fake_report(1.0)
+        rep["dynamics"]["fused"]["pos_err_m"] = 0.02
+        rep["dynamics"]["ground_truth_geometry"]["pos_err_m"] = 0.001
+        return rep
+
+    res = run_bench(tmp_path / "s", tmp_path / "out", process=process)
+    md = res.tables["dynamics_md"].read_text()
+    assert "| fused | **2.00** |" in md and "| ground_truth_geometry | 0.10 |" in md
+    assert md.rstrip().endswith("| 1 |")  # the session count is an integer
