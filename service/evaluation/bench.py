@@ -181,7 +181,7 @@ def _plots(rows: list[dict], out_dir: Path) -> dict[str, Path]:
         present = [m for m in methods if any(by.get((s, m), {}).get(metric) is not None for s in sessions)]
         if not present:
             continue
-        fig = _figure(1.6 + 1.6 * len(present), 4)
+        fig = _figure(1.6 + 1.6 * len(present), 4, left=0.8 / (1.6 + 1.6 * len(present)), bottom=0.1)
         ax = fig.add_subplot(1, 1, 1)
         for s in sessions:
             ys = [by.get((s, m), {}).get(metric) for m in present]
