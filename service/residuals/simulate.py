@@ -14,7 +14,9 @@ Effect keys read here (all optional; absent = the nominal model, see ``service.r
 Names and meanings are those of ``service.sim.effects`` where both exist, so an ``ObjectModel.effects``
 means the same in both simulators:
 ``restitution`` (object; table and sphere have 1, Bullet multiplies), ``linear_damping`` and
-``angular_damping`` (viscous rates b, 1/s: free motion v(t) = v(0) e^{−bt}; Bullet gets 1 − e^{−b}),
+``angular_damping`` (viscous rates b, 1/s: force −m b v at the CoM and torque −b I ω, applied before
+every sub-step with Bullet's own damping off — Bullet's multibody damping is −m d (1 + |v|) v, not
+viscous; the same choice as ``service.export.urdf``'s ``apply_damping`` and the synthetic lab),
 ``table_tilt_x`` / ``table_tilt_y`` (rad; g = R_y(ty) R_x(tx) g), ``clock_offset`` (s, robot path read
 at t + δ), ``friction_object_table`` (replaces μ_OT), ``friction_scale_robot`` (multiplies μ_OR), and
 three keys of the recording rather than of the object: ``gravity_scale`` (|g| = 9.81 s),
@@ -28,7 +30,6 @@ and converted in one batch). ``service_sim_simulator`` wraps ``service.sim.rollo
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
@@ -87,6 +88,17 @@ class BulletSimulator:
                 V = V[ConvexHull(V).vertices]
             self._hulls = {key: V}  # one geometry at a time is all the loop uses
         return self._hulls[key]
+
+    def _damp(self, body: int, mass: float, moments: np.ndarray, b_lin: float, b_ang: float) -> None:
+        p, cid = self._p, self._cid
+        v, w = p.getBaseVelocity(body, physicsClientId=cid)
+        pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
+        if b_lin:
+            p.applyExternalForce(body, -1, [-mass * b_lin * x for x in v], pos, p.WORLD_FRAME, physicsClientId=cid)
+        if b_ang:
+            R = quat_to_mat(np.array([orn[3], orn[0], orn[1], orn[2]]))
+            tau = -b_ang * (R @ (moments * (R.T @ np.asarray(w))))
+            p.applyExternalTorque(body, -1, tau.tolist(), p.WORLD_FRAME, physicsClientId=cid)
 
     def close(self) -> None:
         if getattr(self, "_cid", None) is not None:
@@ -149,8 +161,7 @@ class BulletSimulator:
         p.changeDynamics(
             body, -1, localInertiaDiagonal=moments.tolist(), lateralFriction=1.0,
             restitution=float(eff.get("restitution", 0.0)),
-            linearDamping=float(1.0 - math.exp(-float(eff.get("linear_damping", 0.0)))),
-            angularDamping=float(1.0 - math.exp(-float(eff.get("angular_damping", 0.0)))),
+            linearDamping=0.0, angularDamping=0.0,
             collisionMargin=self.margin, activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING, physicsClientId=cid,
         )
         R0 = req.X_WO0[:3, :3]
@@ -175,6 +186,9 @@ class BulletSimulator:
             cons = p.createConstraint(sphere, -1, -1, -1, p.JOINT_FIXED, [0, 0, 0], [0, 0, 0],
                                       ee_path[0].tolist(), physicsClientId=cid)
 
+        b_lin = float(eff.get("linear_damping", 0.0)) / s_time
+        b_ang = float(eff.get("angular_damping", 0.0)) / s_time
+        mass = float(model.mass)
         pos = np.zeros((T - 1, 3))
         quat = np.zeros((T - 1, 4))
         j = 0
@@ -183,6 +197,8 @@ class BulletSimulator:
                 j += 1
                 if ee_path is not None:
                     p.changeConstraint(cons, ee_path[j].tolist(), maxForce=5000.0, physicsClientId=cid)
+                if b_lin or b_ang:  # viscous: F = −m b v at the CoM, τ = −b I_W ω
+                    self._damp(body, mass, moments, b_lin, b_ang)
                 p.stepSimulation(physicsClientId=cid)
             ps, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
             pos[k] = ps

@@ -201,3 +201,15 @@ def test_outputs_survive_the_artifact_store(tmp_path):
     assert back.model.effects == {"restitution": 0.3} and np.allclose(back.model.inertia_O, model.inertia_O)
     assert back.recording_effects == {"gravity_scale": 0.98}
     assert np.array_equal(back.series["heldout_error_before"], [1.0, 2.0])
+
+
+def test_simulator_damping_is_viscous():
+    """v(t) = v0 e^{−bt} and ω(t) = ω0 e^{−bt} (sphere-like cube): distance (1 − e^{−b})/b after 1 s."""
+    t = np.arange(149) / 148.0
+    with BulletSimulator() as sim:
+        X = sim(SimRequest(cube_model(), make_X(np.eye(3), np.array([0, 0, 5.0])), np.array([1.0, 0, 0]),
+                           np.array([0, 0, 5.0]), t, 0.0, None,
+                           {"gravity_scale": 0.0, "linear_damping": 1.5, "angular_damping": 0.8}))
+    assert abs(X[-1, 0, 3] - (1 - np.exp(-1.5)) / 1.5) < 3e-3
+    yaw = np.unwrap(np.arctan2(X[:, 1, 0], X[:, 0, 0]))
+    assert abs(yaw[-1] - 5.0 * (1 - np.exp(-0.8)) / 0.8) < 0.02
