@@ -30,7 +30,6 @@ and converted in one batch). ``service_sim_simulator`` wraps ``service.sim.rollo
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from service.model import ObjectModel
