@@ -90,24 +90,28 @@ def fit_sdf(
     init: SdfGrid | None = None,
     extra_losses: Sequence[ExtraLoss] = (),
     bounds_O: np.ndarray | None = None,
+    halfspace_O: np.ndarray | None = None,
     progress: Callable[[float, str], None] | None = None,
 ) -> SdfGrid:
     """Fit a voxel SDF in O to ``rays`` (see module docstring) and return it.
 
     ``bounds_O`` (2,3) sets the grid box (default: observed surface padded by ``cfg.pad``); enlarge it to cover
     points other losses supervise. ``extra_losses`` are callables ``f(query_fn, step) -> scalar tensor`` with
-    ``query_fn(points_O (P,3) float32 tensor) -> (P,) SDF``, differentiable; they are added to the loss."""
+    ``query_fn(points_O (P,3) float32 tensor) -> (P,) SDF``, differentiable; they are added to the loss.
+    ``halfspace_O`` (4,) = (n, b) with unit n: the half-space n·p + b > 0 is known to be outside the object (e.g.
+    below the table); the SDF is intersected with it, S ← max(S, n·p + b), in the initialisation, in every query
+    of the fit and in the returned grid."""
     if len(rays) == 0:
         raise ValueError("fit_sdf: empty RaySet")
     n_threads = torch.get_num_threads()
     torch.set_num_threads(max(1, cfg.threads))
     try:
-        return _fit(rays, cfg, init, extra_losses, bounds_O, progress)
+        return _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O)
     finally:
         torch.set_num_threads(n_threads)
 
 
-def _fit(rays, cfg, init, extra_losses, bounds_O, progress) -> SdfGrid:
+def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None) -> SdfGrid:
     gen = torch.Generator().manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     if bounds_O is None:
@@ -120,11 +124,21 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress) -> SdfGrid:
     else:
         surf = rays.surface_points_O
         v0 = hull_sdf(surf, grid_points(origin, voxel, shape).reshape(-1, 3)).reshape(shape).astype(np.float32)
+    hs = None
+    if halfspace_O is not None:
+        hs = np.asarray(halfspace_O, float).reshape(4)
+        hs = hs / max(np.linalg.norm(hs[:3]), 1e-12)
+        cut = (grid_points(origin, voxel, shape) @ hs[:3] + hs[3]).astype(np.float32)
+        v0 = np.maximum(v0, cut)
     values = torch.nn.Parameter(torch.from_numpy(np.ascontiguousarray(v0, np.float32)))
     origin_t = torch.tensor(origin, dtype=torch.float32)
+    hs_t = None if hs is None else torch.tensor(hs, dtype=torch.float32)
 
     def query_fn(p: torch.Tensor) -> torch.Tensor:
-        return query_torch(values, origin_t, voxel, p)
+        s = query_torch(values, origin_t, voxel, p)
+        if hs_t is not None:
+            s = torch.maximum(s, p @ hs_t[:3] + hs_t[3])
+        return s
 
     # per-ray sampling intervals, once
     lo, hi = origin, origin + voxel * (np.array(shape) - 1)
@@ -190,6 +204,8 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress) -> SdfGrid:
             progress((step + 1) / cfg.steps, f"sdf step {step + 1}/{cfg.steps} loss {float(loss):.4g}")
 
     vals = values.detach().numpy().astype(np.float32)
+    if hs is not None:
+        vals = np.maximum(vals, cut)
     observed = np.zeros(shape, bool)
     surf = rays.surface_points_O
     if len(surf):

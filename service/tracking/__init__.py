@@ -19,7 +19,7 @@ from service.sdf import extract_mesh, fit_sdf
 from service.tracking.tracker import track
 from service.tracking.types import TrackingConfig, TrackingInputs, TrackingOutputs
 from service.tracking.velocity import velocities
-from service.tracking.visible import pick_frames, sdf_rays, visible_points
+from service.tracking.visible import below_table_halfspace, pick_frames, sdf_rays, visible_points
 
 __all__ = ["run", "TrackingConfig", "TrackingInputs", "TrackingOutputs"]
 
@@ -43,13 +43,16 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
     frames = pick_frames(tr.tracked, cfg.sdf_frames)
     if progress is not None:
         progress(0.6, f"visible SDF from {len(frames)} frames")
-    rays = sdf_rays(s, tr.X_WO, frames, tr.model.tree, cfg, rng)
-    grid = fit_sdf(rays, cfg.sdf, progress=rep(0.6, 0.95))
+    rays = sdf_rays(s, tr.X_WO, frames, tr.model.tree, cfg, rng, carver=tr.carver)
+    halfspace = below_table_halfspace(tr.X_WO[0], s.table_height) if cfg.below_table_outside else None
+    grid = fit_sdf(rays, cfg.sdf, halfspace_O=halfspace, progress=rep(0.6, 0.95))
     mesh = extract_mesh(grid)
     if mesh.is_empty:
         raise StageFailed("tracking", "the visible SDF has no zero level set (no object surface reconstructed)")
     vis_frames = pick_frames(tr.tracked, cfg.visible_frames)
     V = visible_points(s, tr.X_WO, vis_frames, mesh, cfg, rng)
+    if halfspace is not None and len(V):
+        V = V[V @ halfspace[:3] + halfspace[3] <= 1e-6]
     if progress is not None:
         progress(1.0, f"tracked {int(tr.tracked.sum())}/{s.n_frames} frames, |V| = {len(V)}")
     return TrackingOutputs(

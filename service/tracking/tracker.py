@@ -117,7 +117,7 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
     P_W = P_C @ R.T + t
     N_W = N_C @ R.T
     # the table next to the object's base has continuous depth and leaks in with the mask boundary
-    above = P_W[:, 2] > session.table_height + cfg.table_clearance
+    above = (P_W[:, 2] > session.table_height + cfg.table_clearance) & ~near_effector(session, i, P_W, cfg)
     P_W, N_W = P_W[above], N_W[above]
     kp_W = np.zeros((0, 3))
     desc = None
@@ -172,6 +172,59 @@ def _pose_dist(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
     return float(np.linalg.norm(A[:3, 3] - B[:3, 3])), float(np.degrees(rotation_angle(dR)))
 
 
+def near_effector(session, i: int, P_W: np.ndarray, cfg: TrackingConfig) -> np.ndarray:
+    """(N,) bool: points within ee_radius + ee_margin of the end-effector sphere centre of frame i (robot
+    pixels next to the object). All False when the session has no robot data."""
+    if len(getattr(session, "robot_t", ())) == 0 or session.ee_radius <= 0:
+        return np.zeros(len(P_W), bool)
+    c = np.asarray(session.p_WE[i], float)
+    return np.linalg.norm(P_W - c, axis=1) < session.ee_radius + cfg.ee_margin
+
+
+class FreeSpace:
+    """Space seen empty by the keyframes: a point p_O is *seen through* when, in some keyframe k, it projects
+    into the image with camera depth z and the depth reading there, min-filtered over a (2r+1)² window (so that
+    silhouettes and pose errors of a few pixels do not carve the object's own rim), is larger than z + margin —
+    the camera looked past p, so p is empty space. Gripper fingers and other rigidly co-moving clutter adjacent
+    to the object lie where earlier keyframes saw the table or background, while surface that was hidden before
+    (the underside after a topple) lies behind earlier observations or below the table and is kept."""
+
+    def __init__(self, K: np.ndarray, X_WC: np.ndarray, margin: float, px: int):
+        self.K, self.X_CW, self.margin, self.px = K, X_inv(X_WC), float(margin), int(px)
+        self.views: list[tuple[np.ndarray, np.ndarray]] = []  # (X_OW-independent X_CO of the keyframe, depth)
+        self.indices: list[int] = []
+
+    def add(self, index: int, depth: np.ndarray, X_WO: np.ndarray) -> None:
+        import cv2
+
+        d = np.where(depth > 0, depth, 1e3).astype(np.float32)
+        if self.px > 0:
+            k = 2 * self.px + 1
+            d = cv2.erode(d, np.ones((k, k), np.uint8))  # erosion = min filter
+        self.views.append((self.X_CW @ X_WO, d))
+        self.indices.append(int(index))
+
+    def update_pose(self, index: int, X_WO: np.ndarray) -> None:
+        if int(index) in self.indices:
+            j = self.indices.index(int(index))
+            self.views[j] = (self.X_CW @ X_WO, self.views[j][1])
+
+    def seen_through(self, P_O: np.ndarray) -> np.ndarray:
+        out = np.zeros(len(P_O), bool)
+        K = self.K
+        for X_CO, d in self.views:
+            P = P_O @ X_CO[:3, :3].T + X_CO[:3, 3]
+            z = P[:, 2]
+            zz = np.where(z > 1e-6, z, 1.0)
+            u = np.round(K[0, 0] * P[:, 0] / zz + K[0, 2]).astype(int)
+            v = np.round(K[1, 1] * P[:, 1] / zz + K[1, 2]).astype(int)
+            ins = (z > 1e-6) & (u >= 0) & (u < d.shape[1]) & (v >= 0) & (v < d.shape[0])
+            zo = np.full(len(P_O), 0.0)
+            zo[ins] = d[v[ins], u[ins]]
+            out |= ins & (zo < 1e2) & (zo > z + self.margin)
+        return out
+
+
 @dataclass
 class TrackResult:
     X_WO: np.ndarray  # (N,4,4) interpolated where untracked
@@ -180,6 +233,7 @@ class TrackResult:
     rmse: np.ndarray  # (N,)
     model: ObjectModel
     keyframes: list[Keyframe]
+    carver: FreeSpace | None = None
 
 
 def track(session, cfg: TrackingConfig, progress: Progress = None) -> TrackResult:
@@ -225,6 +279,9 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     kf0 = Keyframe(0, X[0].copy(), o0.P_W[keep] @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.P_W[keep], o0.N_W[keep],
                    o0.kp_W @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.desc, o0.kp_W)
     keyframes = [kf0]
+    carver = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px) if cfg.carve else None
+    if carver is not None:
+        carver.add(0, session.depth(0), X[0])
     model = ObjectModel.build(cfg.model_voxel, [(kf0.P_O, o0.N_W[keep] @ X_OW0[:3, :3].T)])
     last = [0]  # indices of tracked frames
 
@@ -279,9 +336,13 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         if best.inlier_frac >= cfg.kf_min_inlier_frac and (far or new_frac > cfg.kf_new_frac):
             near = best.nn_dist < cfg.grow_dist
             X_OW = X_inv(X[i])
+            if carver is not None and near.any():
+                near[near] &= ~carver.seen_through(o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3])
             kf = Keyframe(i, X[i].copy(), o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W[near], o.N_W[near],
                           o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W)
             keyframes.append(kf)
+            if carver is not None:
+                carver.add(i, session.depth(i), X[i])
             model = _model_from(keyframes, cfg.model_voxel)
         if i % 10 == 0:
             _report(progress, 0.6 * i / N, f"tracking frame {i}/{N}, {len(keyframes)} keyframes")
@@ -298,6 +359,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                     X_OW = X_inv(r.X_WO)
                     kf.P_O = kf.P_W @ X_OW[:3, :3].T + X_OW[:3, 3]
                     kf.kp_O = kf.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3]
+                    if carver is not None:
+                        carver.update_pose(kf.index, r.X_WO)
             model = _model_from(keyframes, cfg.model_voxel)
     if cfg.final_pass:
         for i in range(1, N):
@@ -311,7 +374,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             if i % 20 == 0:
                 _report(progress, 0.62 + 0.18 * i / N, f"final registration {i}/{N}")
     X = interpolate_untracked(X, tracked)
-    return TrackResult(X, tracked, frac, rmse, model, keyframes)
+    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver)
 
 
 def _model_from(keyframes: list[Keyframe], voxel: float) -> ObjectModel:

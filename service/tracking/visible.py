@@ -26,7 +26,18 @@ def pick_frames(tracked: np.ndarray, n: int) -> np.ndarray:
     return idx[np.unique(np.round(np.linspace(0, len(idx) - 1, n)).astype(int))]
 
 
-def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng: np.random.Generator) -> RaySet:
+def below_table_halfspace(X_WO0: np.ndarray, table_height: float) -> np.ndarray:
+    """(4,) plane (n, b) in O with n·p_O + b = table_height − z_W(p) at frame 0: positive below the table, where
+    nothing of the object can be (it rests on the table in the first frame)."""
+    return np.concatenate([-X_WO0[2, :3], [table_height - X_WO0[2, 3]]])
+
+
+def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng: np.random.Generator,
+             carver=None) -> RaySet:
+    """Depth rays in O of ``frames`` (see module docstring). ``carver``: optional
+    ``service.tracking.tracker.FreeSpace``; object points some keyframe saw through are dropped."""
+    from service.tracking.tracker import near_effector
+
     parts = []
     K = session.K
     for i in frames:
@@ -42,6 +53,9 @@ def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng
         P_W = P_C @ session.X_WC[:3, :3].T + session.X_WC[:3, 3]
         dist, _ = model_tree.query(P_O, distance_upper_bound=cfg.sdf_denoise)
         ok = np.isfinite(dist) & (P_W[:, 2] > session.table_height + cfg.table_clearance)
+        ok &= ~near_effector(session, int(i), P_W, cfg)
+        if carver is not None and ok.any():
+            ok[ok] &= ~carver.seen_through(P_O[ok])
         keep = np.zeros(mask.shape, bool)
         keep[v[ok], u[ok]] = True
         parts.append(rays_from_frame(depth, mask, K, X_OC, stride=cfg.sdf_stride, ring_px=cfg.sdf_ring_px,
