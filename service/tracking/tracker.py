@@ -336,14 +336,18 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         if best.inlier_frac >= cfg.kf_min_inlier_frac and (far or new_frac > cfg.kf_new_frac):
             near = best.nn_dist < cfg.grow_dist
             X_OW = X_inv(X[i])
+            consistent = True
             if carver is not None and near.any():
-                near[near] &= ~carver.seen_through(o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3])
+                st = carver.seen_through(o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3])
+                consistent = st.mean() <= cfg.carve_frame_frac
+                near[near] &= ~st
             kf = Keyframe(i, X[i].copy(), o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W[near], o.N_W[near],
                           o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W)
-            keyframes.append(kf)
-            if carver is not None:
-                carver.add(i, session.depth(i), X[i])
-            model = _model_from(keyframes, cfg.model_voxel)
+            if consistent:
+                keyframes.append(kf)
+                if carver is not None:
+                    carver.add(i, session.depth(i), X[i])
+                model = _model_from(keyframes, cfg.model_voxel)
         if i % 10 == 0:
             _report(progress, 0.6 * i / N, f"tracking frame {i}/{N}, {len(keyframes)} keyframes")
 

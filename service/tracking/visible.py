@@ -38,8 +38,8 @@ def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng
     ``service.tracking.tracker.FreeSpace``; object points some keyframe saw through are dropped."""
     from service.tracking.tracker import near_effector
 
-    parts = []
     K = session.K
+    frames_in = []
     for i in frames:
         depth = session.depth(int(i))
         mask = session.mask(int(i))
@@ -55,7 +55,24 @@ def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng
         ok = np.isfinite(dist) & (P_W[:, 2] > session.table_height + cfg.table_clearance)
         ok &= ~near_effector(session, int(i), P_W, cfg)
         if carver is not None and ok.any():
-            ok[ok] &= ~carver.seen_through(P_O[ok])
+            st = carver.seen_through(P_O[ok])
+            if st.mean() > cfg.carve_frame_frac:
+                continue  # inconsistent with the space the keyframes saw empty: wrong pose or clutter
+            ok[ok] &= ~st
+        frames_in.append((int(i), depth, mask, X_OC, u, v, P_O, ok))
+    if carver is not None:
+        # second pass: the frames that passed also carve each other's points
+        from service.tracking.tracker import FreeSpace
+
+        fs = FreeSpace(K, session.X_WC, carver.margin, carver.px)
+        for i, depth, _, _, _, _, _, _ in frames_in:
+            fs.add(i, depth, X_WO[i])
+        for f in frames_in:
+            ok = f[7]
+            if ok.any():
+                ok[ok] &= ~fs.seen_through(f[6][ok])
+    parts = []
+    for i, depth, mask, X_OC, u, v, P_O, ok in frames_in:
         keep = np.zeros(mask.shape, bool)
         keep[v[ok], u[ok]] = True
         parts.append(rays_from_frame(depth, mask, K, X_OC, stride=cfg.sdf_stride, ring_px=cfg.sdf_ring_px,
