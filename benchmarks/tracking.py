@@ -156,6 +156,7 @@ def run_one(kind: str, path: Path) -> dict:
         X_OB = X_inv(X_CO[0]) @ T[0]
         et, er = pose_errors(X_CO @ X_OB, T)
         ext = np.sort(out.visible_mesh.to_trimesh().bounding_box_oriented.primitive.extents)
+        hull_mesh_ext = np.sort(out.visible_mesh.to_trimesh().convex_hull.bounding_box_oriented.primitive.extents)
         import trimesh as _tm
 
         hull_ext = np.sort(_tm.points.PointCloud(out.visible_points_O).bounding_box_oriented.primitive.extents) \
@@ -163,7 +164,7 @@ def run_one(kind: str, path: Path) -> dict:
         res.update(rot_med_deg=float(np.degrees(np.median(er[keep]))), rot_p90_deg=float(np.degrees(np.quantile(er[keep], 0.9))),
                    rot_max_deg=float(np.degrees(er[keep].max())), trans_med_mm=float(1e3 * np.median(et[keep])),
                    trans_p90_mm=float(1e3 * np.quantile(et[keep], 0.9)), trans_max_mm=float(1e3 * et[keep].max()),
-                   mesh_obb_extents_m=[float(x) for x in ext], V_obb_extents_m=[float(x) for x in hull_ext])
+                   mesh_obb_extents_m=[float(x) for x in ext], mesh_hull_obb_extents_m=[float(x) for x in hull_mesh_ext], V_obb_extents_m=[float(x) for x in hull_ext])
     return res
 
 
@@ -212,7 +213,8 @@ def main() -> None:
             print(f"{r['session']:28s} vs BundleSDF (frames 0287-0360 excluded): rot med {r['rot_med_deg']:.2f}° "
                   f"p90 {r['rot_p90_deg']:.2f}° max {r['rot_max_deg']:.2f}° | trans med {r['trans_med_mm']:.1f} "
                   f"p90 {r['trans_p90_mm']:.1f} max {r['trans_max_mm']:.1f} mm | tracked {r['tracked']:.2f} | "
-                  f"mesh OBB {np.round(r['mesh_obb_extents_m'], 4).tolist()} m, V OBB "
+                  f"mesh OBB {np.round(r['mesh_obb_extents_m'], 4).tolist()} m, its hull's OBB "
+                  f"{np.round(r['mesh_hull_obb_extents_m'], 4).tolist()} m, V OBB "
                   f"{np.round(r['V_obb_extents_m'], 4).tolist()} m (cube 0.1048) | wall {r['wall_s']:.1f} s, CPU {r['cpu_s']:.1f} s, "
                   f"{r['peak_rss_gb']:.2f} GB (load {r['load_avg']:.1f}; cumulative s {_m(r)})")
 

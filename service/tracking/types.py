@@ -47,7 +47,7 @@ class TrackingConfig:
     # free-space gating of model growth and SDF rays: a point is rejected when a keyframe saw through it, i.e. its
     # depth there (min-filtered over carve_px pixels) exceeds the point's depth by more than carve_margin
     carve: bool = True
-    carve_margin: float = 0.006
+    carve_margin: float = 0.01
     carve_px: int = 3
     carve_frame_frac: float = 0.1  # a frame with more of its object points seen through is inconsistent with the
     # model (wrong pose or clutter in the mask): it neither becomes a keyframe nor supervises the SDF
