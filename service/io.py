@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import types
 import typing
 from pathlib import Path
 from typing import Any, TypeVar
@@ -43,7 +44,7 @@ def _decode(tp: Any, raw: Any, arrays: Any) -> Any:
         return arrays[raw[_ARR]]
     origin = typing.get_origin(tp)
     args = typing.get_args(tp)
-    if origin is typing.Union or str(origin) == "types.UnionType":
+    if origin is typing.Union or origin is types.UnionType:
         if raw is None:
             return None
         non_none = [a for a in args if a is not type(None)]
