@@ -42,14 +42,14 @@ class TrackingConfig:
     edge_jump: float = 0.01  # depth jump (m, plus 2 % of depth) to a neighbour that marks a flying pixel
     table_clearance: float = 0.005  # points lower than this above the table plane are dropped
     min_points: int = 40  # fewer valid object points: frame not trackable
-    ee_margin: float = 0.01  # points within ee_radius + this of the end-effector centre are dropped (robot data only)
+    ee_margin: float = 0.004  # points within ee_radius + this of the end-effector centre are dropped (robot data only)
     below_table_outside: bool = True  # the half-space below the table at frame 0 (in O) is outside the object
     # free-space gating of model growth and SDF rays: a point is rejected when a keyframe saw through it, i.e. its
     # depth there (min-filtered over carve_px pixels) exceeds the point's depth by more than carve_margin
     carve: bool = True
     carve_margin: float = 0.01
     carve_px: int = 3
-    carve_frame_frac: float = 0.1  # a frame with more of its object points seen through is inconsistent with the
+    carve_frame_frac: float = 0.05  # a frame with more of its object points seen through is inconsistent with the
     # model (wrong pose or clutter in the mask): it neither becomes a keyframe nor supervises the SDF
     features: bool = True  # ORB features inside the mask for the coarse motion
     n_features: int = 400
