@@ -104,3 +104,17 @@ def test_rayset_shape_checks():
 
     with pytest.raises(ValueError, match="dirs_O"):
         RaySet(np.zeros((3, 3)), np.zeros((2, 3)), np.zeros(3), np.zeros(3), np.ones(3))
+
+
+def test_halfspace_cuts_the_field_and_the_mesh():
+    rays = _render_sphere_rays(n_views=4)
+    cfg = SdfConfig(resolution=24, steps=40, rays_per_step=256, samples_near=4, samples_far=4)
+    hs = np.array([0.0, 0.0, -1.0, -0.02])  # z < -0.02 is outside
+    g = fit_sdf(rays, cfg, halfspace_O=hs)
+    m = extract_mesh(g)
+    assert m.to_trimesh().is_watertight
+    assert m.vertices[:, 2].min() > -0.02 - g.voxel  # nothing below the plane
+    below = np.array([[0.0, 0.0, -0.04], [0.01, 0.0, -0.035]])
+    np.testing.assert_array_less(0.01, sdf_query(g, below))  # at least the distance to the plane (2 cm, 1.5 cm)
+    g0 = fit_sdf(rays, cfg)
+    assert extract_mesh(g0).vertices[:, 2].min() < -0.04  # without the cut the sphere's underside is closed by the hull

@@ -93,3 +93,42 @@ def test_plots(tracked_session, tmp_path):
     assert img.shape == (s.height, 2 * s.width, 3) and (tmp_path / "ov.png").is_file()
     et, _ = plots.pose_errors_vs_reference(out.X_WO, X_WG)
     assert et[0] < 1e-9
+
+
+def test_nothing_below_the_table(tracked_session):
+    _, s, out, _, _ = tracked_session
+    z_W = out.visible_mesh.vertices @ out.X_WO[0, 2, :3] + out.X_WO[0, 2, 3]  # frame-0 height of the mesh
+    assert z_W.min() > s.table_height - out.sdf.voxel, (z_W.min(), s.table_height)
+    zV = out.visible_points_O @ out.X_WO[0, 2, :3] + out.X_WO[0, 2, 3]
+    assert zV.min() >= s.table_height - 1e-6
+
+
+def test_free_space_rejects_points_seen_through():
+    from service.tracking.tracker import FreeSpace
+
+    K = np.array([[100.0, 0, 40], [0, 100.0, 30], [0, 0, 1]])
+    depth = np.zeros((60, 80), np.float32)
+    depth[:, :] = 1.0  # a wall 1 m in front of the camera
+    depth[20:40, 30:50] = 0.5  # an object patch at 0.5 m
+    fs = FreeSpace(K, np.eye(4), margin=0.01, px=1)
+    fs.add(0, depth, np.eye(4))  # O = W = C
+    P = np.array([[0.0, 0.0, 0.5],   # on the patch: kept
+                  [0.0, 0.0, 0.7],   # behind the patch: hidden, kept
+                  [-0.12, 0.0, 0.6],  # in front of the wall beside the patch (pixel 20): seen through
+                  [-0.24, 0.0, 1.2],  # behind the wall: kept
+                  [-0.055, 0.0, 0.5]])  # one pixel outside the patch (29): the min filter keeps the rim
+    np.testing.assert_array_equal(fs.seen_through(P), [False, False, True, False, False])
+
+
+def test_near_effector_only_with_robot_data(tracked_session):
+    from service.tracking.tracker import near_effector
+
+    _, s, _, _, _ = tracked_session
+    cfg = TrackingConfig()
+    c = s.p_WE[3]
+    P = c + np.array([[s.ee_radius + 0.001, 0, 0], [s.ee_radius + cfg.ee_margin + 0.002, 0, 0]])
+    assert len(s.robot_t) > 0
+    np.testing.assert_array_equal(near_effector(s, 3, P, cfg), [True, False])
+    from dataclasses import replace
+
+    np.testing.assert_array_equal(near_effector(replace(s, robot_t=np.zeros(0)), 3, P, cfg), [False, False])
