@@ -16,7 +16,7 @@ import os
 import shutil
 import uuid
 import zipfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -176,6 +176,41 @@ def copy_bundle(src: Path, out_dir: Path) -> Path:
     return out_dir
 
 
+def _stage_figures(session, tracking, residuals, plots_dir: Path) -> dict[str, Path]:
+    """Figures of the stages themselves: the visible mesh over a few frames, velocities, residuals before and
+    after. A figure that fails is left out (and logged); it never costs the bundle."""
+    import logging
+
+    log = logging.getLogger("vysics.bundle")
+    figs: dict[str, Path] = {}
+    plots_dir.mkdir(parents=True, exist_ok=True)
+    jobs = []
+    if tracking is not None:
+        from service.tracking import plots as tp
+
+        jobs += [("mesh_overlay", lambda p: tp.overlay_frames(session, tracking, path=p)),
+                 ("velocities", lambda p: tp.velocity_figure(tracking, path=p))]
+    if residuals is not None:
+        from service.residuals import plots as rp
+
+        jobs += [("residuals_by_mode", lambda p: rp.plot_rollout_by_mode(residuals, p)),
+                 ("residuals_heldout", lambda p: rp.plot_heldout_errors(residuals, p)),
+                 ("residuals_steps", lambda p: rp.plot_step_residuals(residuals, p))]
+    for name, make in jobs:
+        path = plots_dir / f"{name}.png"
+        try:
+            make(path)
+            if path.exists():
+                figs[name] = path
+        except Exception as e:  # noqa: BLE001 - figures must not cost the bundle
+            log.warning("figure %s failed: %s: %s", name, type(e).__name__, e)
+        finally:
+            import matplotlib.pyplot as plt
+
+            plt.close("all")
+    return figs
+
+
 def parts_from_outputs(
     *,
     session,
@@ -210,6 +245,10 @@ def parts_from_outputs(
     model_reason = None
     if co is not None and fu is not None and not fu.mesh.is_empty:
         model = assemble_model(session, co, fu.mesh, rs.effects if rs is not None else None)
+        augmented = getattr(rs, "model", None) if rs is not None else None
+        if augmented is not None:
+            # the residual loop may also have changed friction or the centre of mass (accepted effects)
+            model = replace(model, friction=augmented.friction, com_O=np.asarray(augmented.com_O, float))
     else:
         model_reason = next((f"{s}: {reasons[s]}" for s in ("contact", "fusion") if s in reasons),
                             "needs contact and fusion outputs")
@@ -224,6 +263,8 @@ def parts_from_outputs(
             plots = make_plots(ev.series, {k: m for k, m in named.items() if m is not None}, Path(plots_dir))
         except Exception as e:  # noqa: BLE001 - figures must not cost the bundle
             reasons = {**reasons, "plots": f"figures failed: {type(e).__name__}: {e}"}
+    if plots_dir is not None:
+        plots.update(_stage_figures(session, tr, rs, Path(plots_dir)))
     rsn = {"model": model_reason} if model_reason else {}
     for s in ("tracking", "evaluation", "residuals"):
         if outputs.get(s) is None:

@@ -23,6 +23,11 @@ FIGURE_TITLES = {
     "divergence": "Time before divergence",
     "contacts": "Robot–object contact: annotated and simulated",
     "tracking_errors": "Tracking error against ground truth",
+    "mesh_overlay": "Visible mesh projected over frames at the tracked pose (green: tracked, red: lost; cyan: mask)",
+    "velocities": "Tracked velocities (filtered backward differences)",
+    "residuals_by_mode": "Rollout error by contact mode, before and after the accepted effects",
+    "residuals_heldout": "Held-out error per block, before and after",
+    "residuals_steps": "Per-step dynamics residuals of the fitted contact model",
 }
 
 CSS = """

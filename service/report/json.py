@@ -111,6 +111,8 @@ def residuals_section(residuals, reason: str | None) -> dict:
         "error_before": dict(residuals.error_before),
         "error_after": dict(residuals.error_after),
         **({"by_mode": residuals.by_mode} if residuals.by_mode else {}),
+        # accepted effects of the recording itself (gravity/time scale, table offset): reported, not simulated
+        "recording_effects": dict(getattr(residuals, "recording_effects", {}) or {}),
     })
 
 
