@@ -24,8 +24,10 @@ from service.contact.learn import (
     build_model,
     contact_loss,
     export,
+    vision_directions,
     vision_loss,
 )
+from service.contact.geometry import outward_directions_to
 from service.contact.solver import SolverSettings
 from service.contact.types import ContactConfig, ContactInputs, ContactOutputs, StepResiduals
 from service.errors import StageFailed
@@ -52,7 +54,12 @@ def _solver(cfg: ContactConfig, iters: int | None = None) -> SolverSettings:
 
 def train(model: ContactModel, tr: Transitions, dt: float, cfg: ContactConfig, *, ee_radius: float = 0.0,
           visible_points: np.ndarray | None = None, progress: Progress = None) -> TrainResult:
-    """Adam on the violation-implicit loss; leaves ``model`` at the best epoch's parameters."""
+    """Adam on the violation-implicit loss; leaves ``model`` at the best epoch's parameters.
+
+    The detached hull is exported once per epoch; the sphere directions of all transitions and the vision
+    directions n̂ᵥ are computed on it then (the sphere centres in O and V are data, independent of θ). Training
+    stops early when the epoch loss has not improved by ``cfg.plateau_rel_tol`` (relative) for
+    ``cfg.patience`` epochs (after at least ``cfg.min_epochs``)."""
     w = _weights(cfg)
     gen = torch.Generator().manual_seed(cfg.seed + 1)
     perm_rng = np.random.default_rng(cfg.seed)
@@ -66,33 +73,54 @@ def train(model: ContactModel, tr: Transitions, dt: float, cfg: ContactConfig, *
     sched = torch.optim.lr_scheduler.LambdaLR(
         opt, lambda k: cfg.lr_final_fraction + (1 - cfg.lr_final_fraction) * 0.5 * (1 + np.cos(np.pi * min(k, total_steps) / total_steps)))
     S = len(tr)
-    V = None if visible_points is None or len(visible_points) == 0 else torch.as_tensor(visible_points, dtype=torch.float64)
+    V = None
+    if visible_points is not None and len(visible_points) > 0 and w.vision > 0:
+        Vn = np.asarray(visible_points, float)
+        if len(Vn) > cfg.max_vision_points:  # fixed random subset: the term is a mean over V
+            Vn = Vn[np.random.default_rng(cfg.seed + 3).choice(len(Vn), cfg.max_vision_points, replace=False)]
+        V = torch.as_tensor(Vn, dtype=torch.float64)
     need_hull = tr.ee_p is not None or V is not None
+    c_O = None
+    if tr.ee_p is not None:
+        from service.contact.dynamics import quat_to_mat
+        from service.contact.learn import sphere_centres_O
+
+        c_O = sphere_centres_O(quat_to_mat(tr.quat_next), tr.p_next, tr.ee_p)
     lam_cache: torch.Tensor | None = None
     history = []
     best = (np.inf, -1, copy.deepcopy(model.state_dict()))
+    ref_best, since = np.inf, 0
     t_solver = t_total = t_hull = 0.0
     n_solved = 0
     for ep in range(cfg.epochs):
         order = perm_rng.permutation(S)
         tot, cnt = 0.0, 0
+        th = time.perf_counter()
+        ee_dirs_all = n_vis = None
+        if need_hull:
+            hull = export(model, cfg.export_grid)[0]
+            if c_O is not None:
+                ee_dirs_all = torch.as_tensor(outward_directions_to(hull, c_O, cfg.closest_candidates)[2], dtype=torch.float64)
+            if V is not None:
+                n_vis = vision_directions(hull, V, cfg.closest_candidates)
+        t_hull += time.perf_counter() - th
+        t_total += time.perf_counter() - th
         for a in range(0, S, cfg.batch_size):
             t0 = time.perf_counter()
             idx = order[a : a + cfg.batch_size]
+            it = torch.as_tensor(idx)
             batch = tr.take(idx)
-            th = time.perf_counter()
-            hull = export(model, cfg.export_grid)[0] if need_hull else None
-            t_hull += time.perf_counter() - th
             lam0 = None
             if cfg.warm_start and lam_cache is not None:
-                lam0 = lam_cache[torch.as_tensor(idx)]
-            res = contact_loss(model, batch, dt, w, cfg.n_plane, gen, _solver(cfg), ee_radius, hull, lam0)
+                lam0 = lam_cache[it]
+            res = contact_loss(model, batch, dt, w, cfg.n_plane, gen, _solver(cfg), ee_radius, None, lam0,
+                               None if ee_dirs_all is None else ee_dirs_all[it])
             if lam_cache is None:
                 lam_cache = torch.zeros(S, res.lam.shape[1], dtype=torch.float64)
-            lam_cache[torch.as_tensor(idx)] = res.lam
+            lam_cache[it] = res.lam
             loss = res.loss
-            if V is not None and w.vision > 0:
-                loss = loss + w.vision * vision_loss(model, V, hull)
+            if V is not None:
+                loss = loss + w.vision * vision_loss(model, V, None, n_vis)
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -110,14 +138,22 @@ def train(model: ContactModel, tr: Transitions, dt: float, cfg: ContactConfig, *
             best = (ep_loss, ep, copy.deepcopy(model.state_dict()))
         if progress is not None:
             progress((ep + 1) / cfg.epochs, f"epoch {ep + 1}/{cfg.epochs} loss {ep_loss:.4g}")
+        # plateau: no relative improvement of the best loss for `patience` epochs
+        if ep_loss < ref_best * (1.0 - cfg.plateau_rel_tol):
+            ref_best, since = ep_loss, 0
+        else:
+            since += 1
+        if cfg.patience > 0 and ep + 1 >= cfg.min_epochs and since >= cfg.patience:
+            break
     model.load_state_dict(best[2])
+    n_ep = len(history)
     timings = {
         "train_s": t_total,
         "solver_s": t_solver,
         "hull_s": t_hull,
         "forward_backward_s": t_total - t_solver - t_hull,
-        "epochs": cfg.epochs,
-        "s_per_epoch": t_total / max(cfg.epochs, 1),
+        "epochs": n_ep,
+        "s_per_epoch": t_total / max(n_ep, 1),
         "transitions_solved_per_s": n_solved / max(t_solver, 1e-9),
     }
     return TrainResult(np.asarray(history), best[1], timings)
@@ -203,10 +239,24 @@ def _check_inputs(inputs: ContactInputs) -> None:
 
 
 def run(inputs: ContactInputs, cfg: ContactConfig, *, progress: Progress = None) -> ContactOutputs:
-    """Learn geometry (deep support function), CoM and inertia from the trajectories (module docstrings)."""
+    """Learn geometry (deep support function), CoM and inertia from the trajectories (module docstrings).
+
+    Runs with ``cfg.threads`` torch threads (restored afterwards): the batched ops here are small, and one
+    thread is faster than two on a shared 2-core machine (docs/contact.md)."""
+    _check_inputs(inputs)
+    n_threads = torch.get_num_threads()
+    if cfg.threads > 0:
+        torch.set_num_threads(cfg.threads)
+    try:
+        return _run(inputs, cfg, progress)
+    finally:
+        torch.set_num_threads(n_threads)
+
+
+def _run(inputs: ContactInputs, cfg: ContactConfig, progress: Progress) -> ContactOutputs:
     from service.contact.learn import make_transitions
 
-    _check_inputs(inputs)
+    t_start = time.perf_counter()
     mass = float(inputs.mass) if inputs.mass and inputs.mass > 0 else cfg.default_mass
     tr = make_transitions(inputs.states, inputs.ee_p_W, inputs.ee_v_W, inputs.table_height)
     V = inputs.visible_points_O
@@ -218,10 +268,13 @@ def run(inputs: ContactInputs, cfg: ContactConfig, *, progress: Progress = None)
                         learn_friction=cfg.learn_friction, learn_mass=cfg.learn_mass, seed=cfg.seed)
     prog = (lambda f, m: progress(0.95 * f, m)) if progress is not None else None
     t0 = time.perf_counter()
+    t_pretrain = t0 - t_start
     tres = train(model, tr, inputs.dt, cfg, ee_radius=inputs.ee_radius, visible_points=V, progress=prog)
+    t1 = time.perf_counter()
     ev = evaluate(model, tr, inputs.dt, cfg, ee_radius=inputs.ee_radius)
     P, N = physible_set(ev, cfg.physible_fraction, cfg.max_physible_points, cfg.seed)
     mesh, dirs, spts = export(model, cfg.export_grid)
+    t_final = time.perf_counter() - t1
     if mesh.is_empty:
         raise StageFailed("contact", "the learned support function gave an empty hull")
     with torch.no_grad():
@@ -235,7 +288,9 @@ def run(inputs: ContactInputs, cfg: ContactConfig, *, progress: Progress = None)
         "best_epoch": float(tres.best_epoch),
         "transitions": float(len(tr)),
         "physible_points": float(len(P)),
-        "wall_time_s": time.perf_counter() - t0,
+        "wall_time_s": time.perf_counter() - t_start,
+        "time_setup_pretrain_s": t_pretrain,
+        "time_final_pass_s": t_final,
         "mass_declared": float(bool(inputs.mass_declared)),
         **{f"time_{k}": float(v) for k, v in tres.timings.items()},
     }

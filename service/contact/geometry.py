@@ -166,24 +166,77 @@ def closest_point_on_triangles(p: np.ndarray, tri: np.ndarray, chunk: int = 2048
     return out, dist
 
 
-def closest_point_on_hull(mesh: Mesh, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closest surface points (N,3) of a convex mesh and signed distances (N,) (positive outside)."""
+def closest_point_on_hull(mesh: Mesh, p: np.ndarray, candidates: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Closest surface points (N,3) of a convex mesh and signed distances (N,) (positive outside).
+
+    ``candidates`` = k > 0: points outside are tested only against the k faces with the largest plane
+    distance (the faces the point sees most directly; the closest point lies on a face the point sees);
+    points inside are projected exactly onto their nearest face plane (for a convex body that projection lies
+    on the face). Exact for points near the surface, k× fewer point-triangle tests; 0 = all faces (exact)."""
     V = np.asarray(mesh.vertices, float)
     F = np.asarray(mesh.faces, np.int64)
+    p = np.asarray(p, float)
     tri = V[F]
-    cp, dist = closest_point_on_triangles(p, tri)
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     n = n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
     off = (n * tri[:, 0]).sum(-1)
-    outside = ((np.asarray(p, float) @ n.T) - off > 1e-12).any(-1)
-    return cp, np.where(outside, dist, -dist)
+    pd = p @ n.T - off  # (N,F) plane distances
+    outside = (pd > 1e-12).any(-1)
+    if candidates <= 0 or candidates >= len(F):
+        cp, dist = closest_point_on_triangles(p, tri)
+        return cp, np.where(outside, dist, -dist)
+    cp = np.empty_like(p)
+    dist = np.empty(len(p))
+    ins = ~outside
+    if ins.any():
+        j = pd[ins].argmax(-1)
+        d = pd[ins][np.arange(len(j)), j]
+        cp[ins] = p[ins] - d[:, None] * n[j]
+        dist[ins] = d
+    if outside.any():
+        po = p[outside]
+        k = np.argpartition(-pd[outside], candidates - 1, axis=-1)[:, :candidates]  # (No,k)
+        c, dd = _closest_on_candidates(po, tri, k)
+        cp[outside] = c
+        dist[outside] = dd
+    return cp, dist
 
 
-def outward_directions_to(mesh: Mesh, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _closest_on_candidates(p: np.ndarray, tri: np.ndarray, k: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points of p (N,3) on the triangles tri[k[i]] (k (N,K) face indices per point)."""
+    T = tri[k]  # (N,K,3,3)
+    A, B, C = T[:, :, 0], T[:, :, 1], T[:, :, 2]
+    q = p[:, None, :]
+    ab, ac = B - A, C - A
+    ap, bp, cpv = q - A, q - B, q - C
+    d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
+    d3, d4 = (ab * bp).sum(-1), (ac * bp).sum(-1)
+    d5, d6 = (ab * cpv).sum(-1), (ac * cpv).sum(-1)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    denom = va + vb + vc
+    denom = np.where(np.abs(denom) < 1e-300, 1e-300, denom)
+    res = A + ab * (vb / denom)[..., None] + ac * (vc / denom)[..., None]
+    m = (va <= 0) & ((d4 - d3) >= 0) & ((d5 - d6) >= 0)
+    wbc = (d4 - d3) / np.where((d4 - d3) + (d5 - d6) == 0, 1e-300, (d4 - d3) + (d5 - d6))
+    res = np.where(m[..., None], B + (C - B) * wbc[..., None], res)
+    m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+    res = np.where(m[..., None], A + ac * (d2 / np.where(d2 - d6 == 0, 1e-300, d2 - d6))[..., None], res)
+    m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+    res = np.where(m[..., None], A + ab * (d1 / np.where(d1 - d3 == 0, 1e-300, d1 - d3))[..., None], res)
+    res = np.where(((d6 >= 0) & (d5 <= d6))[..., None], C, res)
+    res = np.where(((d3 >= 0) & (d4 <= d3))[..., None], B, res)
+    res = np.where(((d1 <= 0) & (d2 <= 0))[..., None], A, res)
+    dd = ((res - q) ** 2).sum(-1)
+    j = dd.argmin(-1)
+    i = np.arange(len(j))
+    return res[i, j], np.sqrt(dd[i, j])
+
+
+def outward_directions_to(mesh: Mesh, p: np.ndarray, candidates: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For points p (N,3): closest hull points, signed distances, and the unit outward normal direction
     n̂ = (p − p')/‖·‖ outside, (p' − p)/‖·‖ inside. Degenerate (on-surface) points get the nearest
-    face normal."""
-    cp, sd = closest_point_on_hull(mesh, p)
+    face normal. ``candidates``: see ``closest_point_on_hull``."""
+    cp, sd = closest_point_on_hull(mesh, p, candidates)
     diff = np.where((sd >= 0)[:, None], p - cp, cp - p)
     nrm = np.linalg.norm(diff, axis=-1)
     bad = nrm < 1e-9

@@ -154,6 +154,17 @@ def plane_directions(R: torch.Tensor, n_plane: int, gen: torch.Generator) -> tor
     return torch.cat([d0.unsqueeze(1), ring], 1)
 
 
+def sphere_centres_O(R: torch.Tensor, p: torch.Tensor, ee_p: torch.Tensor) -> np.ndarray:
+    """Sphere centres in O, (B,3) numpy (data only: independent of the learned parameters)."""
+    return (R.transpose(-1, -2) @ (ee_p - p).unsqueeze(-1)).squeeze(-1).detach().numpy()
+
+
+def sphere_directions(hull: Mesh, R: torch.Tensor, p: torch.Tensor, ee_p: torch.Tensor) -> torch.Tensor:
+    """(B,3) unit outward directions from the closest points of the detached hull to the sphere centres (O)."""
+    _, _, nout = outward_directions_to(hull, sphere_centres_O(R, p, ee_p))
+    return torch.as_tensor(nout, dtype=R.dtype)
+
+
 @dataclass
 class ContactSet:
     phi: torch.Tensor  # (B,nc)
@@ -166,8 +177,9 @@ class ContactSet:
 
 def contact_set(model: ContactModel, R: torch.Tensor, p: torch.Tensor, nu_next: torch.Tensor, n_plane: int,
                 gen: torch.Generator, ee_p: torch.Tensor | None = None, ee_v: torch.Tensor | None = None,
-                ee_radius: float = 0.0, hull: Mesh | None = None) -> ContactSet:
-    """Contacts at the next state (table at z = 0)."""
+                ee_radius: float = 0.0, hull: Mesh | None = None, ee_dirs: torch.Tensor | None = None) -> ContactSet:
+    """Contacts at the next state (table at z = 0). ``ee_dirs`` (B,3): outward hull directions toward the sphere
+    centres, precomputed on a detached hull (else computed here from ``hull``)."""
     B = R.shape[0]
     mu = model.mu
     ez = torch.tensor([0.0, 0.0, 1.0], dtype=R.dtype)
@@ -186,10 +198,8 @@ def contact_set(model: ContactModel, R: torch.Tensor, p: torch.Tensor, nu_next: 
     parts_phi, parts_J, parts_sl, parts_w, parts_n = [phi], [Jp], [slide], [s], [normal_O]
     is_ee = [False] * dirs.shape[1]
     if ee_p is not None:
-        c_O = (R.transpose(-1, -2) @ (ee_p - p).unsqueeze(-1)).squeeze(-1)
-        _, sd, nout = outward_directions_to(hull, c_O.detach().numpy())
         # n̂ is the outward object normal toward the sphere centre; contact normal (sphere -> object) = −n̂
-        dq = torch.as_tensor(nout, dtype=R.dtype)
+        dq = ee_dirs if ee_dirs is not None else sphere_directions(hull, R, p, ee_p)
         se = model.geometry(dq)  # (B,3)
         nW = -(R @ dq.unsqueeze(-1)).squeeze(-1)
         we = (R @ se.unsqueeze(-1)).squeeze(-1) + p
@@ -230,7 +240,7 @@ class BatchResult:
 
 def contact_loss(model: ContactModel, batch: Transitions, dt: float, w: LossWeights, n_plane: int,
                  gen: torch.Generator, solver: SolverSettings, ee_radius: float = 0.0, hull: Mesh | None = None,
-                 lam0: torch.Tensor | None = None) -> BatchResult:
+                 lam0: torch.Tensor | None = None, ee_dirs: torch.Tensor | None = None) -> BatchResult:
     """The violation-implicit loss of a batch of transitions (module docstring)."""
     R = dyn.quat_to_mat(batch.quat_next)
     m = model.inertia.mass
@@ -240,7 +250,8 @@ def contact_loss(model: ContactModel, batch: Transitions, dt: float, w: LossWeig
     F = dyn.bias_force(R, batch.nu_next, m, c, Ic)
     Mdv = (M @ (batch.nu_next - batch.nu).unsqueeze(-1)).squeeze(-1) - dt * F
     Lc = torch.linalg.cholesky(M)
-    cs = contact_set(model, R, batch.p_next, batch.nu_next, n_plane, gen, batch.ee_p, batch.ee_v, ee_radius, hull)
+    cs = contact_set(model, R, batch.p_next, batch.nu_next, n_plane, gen, batch.ee_p, batch.ee_v, ee_radius, hull,
+                     ee_dirs)
     B, n3, _ = cs.J.shape
     nc = n3 // 3
     X = torch.linalg.solve_triangular(Lc, cs.J.transpose(-1, -2), upper=False)  # L⁻¹Jᵀ (B,6,3nc)
@@ -274,10 +285,16 @@ def contact_loss(model: ContactModel, batch: Transitions, dt: float, w: LossWeig
     return BatchResult(loss, per.detach(), lam, valid, cs, dv_obs, dv_exp, terms, st, res.iters)
 
 
-def vision_loss(model: ContactModel, V: torch.Tensor, hull: Mesh) -> torch.Tensor:
-    """mean_v |n̂ᵥ·(s(n̂ᵥ) − sᵥ)| (method-notes §6.1), hull detached."""
-    _, _, n = outward_directions_to(hull, V.numpy())
-    nt = torch.as_tensor(n, dtype=torch.float64)
+def vision_directions(hull: Mesh, V: torch.Tensor, candidates: int = 0) -> torch.Tensor:
+    """(K,3) outward directions n̂ᵥ from the closest points of the detached hull to the visible points V (K,3)."""
+    _, _, n = outward_directions_to(hull, V.numpy(), candidates)
+    return torch.as_tensor(n, dtype=torch.float64)
+
+
+def vision_loss(model: ContactModel, V: torch.Tensor, hull: Mesh | None, nt: torch.Tensor | None = None) -> torch.Tensor:
+    """mean_v |n̂ᵥ·(s(n̂ᵥ) − sᵥ)| (method-notes §6.1), hull detached; ``nt`` = precomputed n̂ᵥ (K,3)."""
+    if nt is None:
+        nt = vision_directions(hull, V)
     sp = model.geometry(nt)
     return ((sp - V) * nt).sum(-1).abs().mean()
 
@@ -286,7 +303,16 @@ def init_geometry(model: ContactModel, init_vertices: np.ndarray | None, init_ra
     """Pre-fit the support function to the initial guess (hull of init vertices, else a ball)."""
     if steps <= 0:
         return
-    verts = init_vertices if init_vertices is not None else init_radius * fibonacci_directions(400)
+    if init_vertices is not None:
+        verts = np.asarray(init_vertices, float)
+        try:  # only the hull vertices matter for support points (a visible mesh has thousands of vertices)
+            from scipy.spatial import ConvexHull
+
+            verts = verts[ConvexHull(verts).vertices]
+        except Exception:  # degenerate (flat) guesses: keep all points
+            pass
+    else:
+        verts = init_radius * fibonacci_directions(400)
     pretrain_to_points(model.geometry, verts, steps=steps)
 
 

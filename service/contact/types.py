@@ -96,6 +96,12 @@ class ContactConfig:
     solver_max_iters: int = 100
     solver_eps_rel: float = 1e-4
     warm_start: bool = True
+    patience: int = 25  # stop when the epoch loss has not improved by plateau_rel_tol for this many epochs (0 = off)
+    plateau_rel_tol: float = 0.01
+    min_epochs: int = 40
+    threads: int = 1  # torch threads while the stage runs (restored afterwards; 0 = leave as is)
+    max_vision_points: int = 1000  # fixed random subset of V used by the vision term
+    closest_candidates: int = 12  # faces tested per point for hull closest points in training (0 = all, exact)
     # physible set
     physible_fraction: float = 0.3
     max_physible_points: int = 20000
