@@ -276,36 +276,42 @@ def cmd_runner(a: argparse.Namespace) -> int:
 
 
 def cmd_fit_dynamics(a: argparse.Namespace) -> int:
-    import importlib
-
+    """Contact learning then the residual loop (Prefect flow ``fit-dynamics``) on trajectories alone."""
+    from service.contact.data import load_trajectories
     from service.errors import InvalidInput
 
-    contact = importlib.import_module("service.contact")
-    fit = getattr(contact, "fit_trajectories", None)
-    if fit is None:
-        _err("fit-dynamics: stage unavailable: service.contact.fit_trajectories does not exist yet")
-        return EXIT_UNAVAILABLE
     data = Path(a.data)
     if not data.is_file():
         _err(f"{data}: no such file")
         return EXIT_INVALID
-    from service.config import PipelineConfig
-
-    cfg = PipelineConfig.preset_named(a.preset).contact
-    bar = _Bar("fit-dynamics")
     try:
-        kwargs = {}
-        if a.mass is not None:
-            kwargs["mass"] = a.mass
-        if a.train_ids:
-            kwargs["train_ids"] = [int(x) for x in a.train_ids.split(",")]
-        _, report = fit(data, out_dir=Path(a.out), cfg=cfg, progress=bar, **kwargs)
+        load_trajectories(data)  # validate before anything runs or is written
     except InvalidInput as e:
-        bar.close()
         _err(f"{e.file}: {e.rule}")
         return EXIT_INVALID
-    bar.close()
-    print(f"results: {Path(a.out).resolve()}")
+    train_ids = [int(x) for x in a.train_ids.split(",")] if a.train_ids else None
+    out = Path(a.out).resolve()
+    out.mkdir(parents=True, exist_ok=True)
+    _use_data_dir(getattr(a, "data_dir", None))
+    _quiet_prefect()
+    from flows import fit_dynamics as fd
+
+    bars: dict[str, _Bar] = {}
+    fd.PROGRESS_HOOKS[str(out)] = lambda stage: bars.setdefault(stage, _Bar(stage))
+    try:
+        result = fd.fit_dynamics(str(data.resolve()), str(out), preset=a.preset or "default", mass=a.mass,
+                                 train_ids=train_ids, residuals=not a.no_residuals)
+    except InvalidInput as e:
+        _err(f"{e.file}: {e.rule}")
+        return EXIT_INVALID
+    finally:
+        fd.PROGRESS_HOOKS.pop(str(out), None)
+        for b in bars.values():
+            b.close()
+    r = result.get("residuals")
+    if r is not None:
+        print(f"residual loop: accepted {r['accepted'] or 'nothing'}; held-out error {r['error_before']} -> {r['error_after']}")
+    print(f"results: {out}")
     return 0
 
 
@@ -397,6 +403,8 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--preset", default="default", choices=["default", "fast"])
     f.add_argument("--mass", type=float, default=None, help="kg, if known")
     f.add_argument("--train-ids", default=None, help="comma-separated trajectory ids to train on")
+    f.add_argument("--no-residuals", action="store_true", help="skip the residual loop (missing-effect search)")
+    f.add_argument("--data-dir", default=None, help="VYSICS_DATA_DIR (Prefect's embedded database lives there)")
     f.set_defaults(func=cmd_fit_dynamics)
 
     b = sub.add_parser("bench", help="dataset benchmark: tables and figures over processed sessions")

@@ -102,3 +102,28 @@ def test_run_bad_config_and_stages(session, tmp_path, capsys):
     assert "warp" in capsys.readouterr().err
     assert main(["run", str(tmp_path / "missing"), "--out", str(tmp_path / "o")]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def test_fit_dynamics_runs_contact_and_residual_tasks(tmp_path, prefect_server):
+    """Simulated tosses of a known box -> physible mesh, inertia, report with the residual-loop block."""
+    import numpy as np
+
+    from tests.contact.synthetic import tosses
+
+    trajs = tosses(6, 40, 0.01, seed=1)
+    states = np.concatenate(trajs)
+    offsets = np.concatenate([[0], np.cumsum([len(t) for t in trajs])])
+    data = tmp_path / "tosses" / "data.npz"
+    data.parent.mkdir()
+    np.savez(data, states=states, offsets=offsets)
+    (data.parent / "meta.json").write_text(json.dumps({"name": "box_tosses", "dt_s": 0.01}))
+    out = tmp_path / "fit"
+    rc = main(["fit-dynamics", str(data), "--out", str(out), "--preset", "fast", "--mass", "0.3"])
+    assert rc == 0
+    for name in ("physible.obj", "inertia.json", "report.json", "residuals.json", "plots/residuals_by_mode.png"):
+        assert (out / name).is_file(), name
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["mass_kg"] == 0.3 and rep["mass_declared"] is True
+    res = rep["residuals"]
+    assert {"candidates", "accepted", "error_before", "error_after"} <= set(res)
+    assert all(c["effect"] and isinstance(c["accepted"], bool) for c in res["candidates"])
