@@ -336,8 +336,15 @@ def cmd_bench(a: argparse.Namespace) -> int:
         return json.loads((Path(res["bundle_dir"]) / "report.json").read_text())
 
     bar = _Bar("bench")
-    res = run_bench(Path(a.sessions) if a.sessions else None, out, preset=a.preset, process=process_one,
-                    progress=bar)
+    if a.sessions:
+        sessions = Path(a.sessions)
+    else:  # every object kind × the given seeds, heavy occlusion (seeds other than the ones tests tune on)
+        seeds = [int(x) for x in str(a.seeds).split(",") if x.strip()]
+        sessions = bench.default_specs(a.preset, seeds)
+        if a.objects:
+            want = {x.strip() for x in a.objects.split(",")}
+            sessions = [s for s in sessions if s.object in want]
+    res = run_bench(sessions, out, preset=a.preset, process=process_one, progress=bar)
     bar.close()
     print(f"results: {out.resolve()} ({len(res.rows)} rows, {len(res.failures)} failed sessions)")
     for f in res.failures:
@@ -412,6 +419,8 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--out", required=True)
     b.add_argument("--preset", default="small", help="synthetic preset of generated sessions")
     b.add_argument("--pipeline-preset", default=None, choices=["default", "fast"])
+    b.add_argument("--seeds", default="0,1,2", help="seeds of the generated synthetic set (comma separated)")
+    b.add_argument("--objects", default=None, help="object kinds to include (comma separated; default: all)")
     b.add_argument("--data-dir", default=None, type=Path)
     b.set_defaults(func=cmd_bench)
     return p
