@@ -114,3 +114,33 @@ def test_fit_trajectories_writes_the_outputs(tmp_path):
     assert np.allclose(out.residuals.residual, out.residuals.dv_observed - out.residuals.dv_explained)
     with pytest.raises(InvalidInput, match="train_ids"):
         fit_trajectories(p, out_dir=tmp_path / "out2", cfg=cfg, train_ids=[1])
+
+
+def test_run_with_sphere_and_vision_stops_on_plateau_and_restores_threads():
+    import torch
+
+    from service.contact import run
+    from service.contact.types import ContactConfig, ContactInputs
+    from service.session.types import Friction
+
+    from .synthetic import HALF, tosses
+
+    tr = tosses(2, 15, 0.01, seed=4)
+    ee = tuple(s[:, 4:7] + np.array([0.0, 0.0, 0.3]) for s in tr)  # a sphere far above: never in contact
+    rng = np.random.default_rng(0)
+    V = rng.uniform(-1, 1, (3000, 3)) * HALF  # more than max_vision_points
+    inp = ContactInputs(dt=0.01, states=tuple(tr), ee_p_W=ee, ee_v_W=tuple(np.zeros_like(e) for e in ee),
+                        ee_radius=0.02, table_height=0.0, friction=Friction(), mass=0.3, mass_declared=True,
+                        visible_points_O=V, init_vertices_O=None)
+    cfg = ContactConfig(width=16, epochs=400, pretrain_steps=20, export_grid=5, patience=3, min_epochs=5,
+                        plateau_rel_tol=0.5, max_vision_points=200, threads=1)
+    n_before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        out = run(inp, cfg)
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(n_before)
+    # a 50 % improvement is required to continue: the loop stops long before 400 epochs
+    assert 5 <= len(out.loss_history) < 400 and out.metrics["time_epochs"] == len(out.loss_history)
+    assert out.residuals.phi_ee.shape == (sum(len(s) - 1 for s in tr),) and (out.residuals.phi_ee > 0.1).all()

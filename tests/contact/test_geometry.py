@@ -85,3 +85,19 @@ def test_pretrain_fits_a_box():
     half = 0.5 * np.ptp(mesh.vertices, axis=0)
     assert err < 2e-3
     assert np.allclose(half, h, rtol=0.15)
+
+
+def test_closest_point_with_candidate_faces_matches_exact_near_the_surface():
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(300, 3))
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    mesh = hull_mesh(d * [0.05, 0.03, 0.02])
+    # points from well inside to 60 % outside the surface (visible points, sphere centres)
+    p = rng.normal(size=(800, 3)) * [0.05, 0.03, 0.02] * rng.uniform(0.3, 1.6, (800, 1))
+    cp, sd = closest_point_on_hull(mesh, p)
+    cp_k, sd_k = closest_point_on_hull(mesh, p, candidates=12)
+    assert (sd < 0).any() and (sd > 0).any()
+    assert np.allclose(cp_k, cp, atol=1e-9) and np.allclose(sd_k, sd, atol=1e-9)
+    n = outward_directions_to(mesh, p)[2]
+    n_k = outward_directions_to(mesh, p, candidates=12)[2]
+    assert np.allclose(n_k, n, atol=1e-7)
