@@ -5,6 +5,7 @@ Usage (prints figures and the command that reproduces them):
     python benchmarks/contact.py tagslam   [--steps 400]
     python benchmarks/contact.py speed     [--epochs 300]
     python benchmarks/contact.py synth
+    python benchmarks/contact.py pipeline-input [--preset tiny|small|full] [--config fast|default]
 
 cube:    148 Hz ContactNets cube tosses, no vision term. The shared ids are split here (seed 0): ``heldout``
          tosses for open-loop rollouts, training sets of growing size drawn from the rest (nested).
@@ -15,6 +16,8 @@ tagslam: 30 Hz TagSLAM tosses of the prism and the napkin box: chamfer distance 
          samples each, cm) of the learned hull to the ground-truth mesh in the trajectories' body frame
          (no alignment; the meta says the gt frame agrees to 1-2 cm), and after centring both meshes.
 speed:   a 10 s push session at 30 Hz (299 transitions) with the end-effector sphere contact.
+pipeline-input: synthetic session -> ingest -> tracking -> contact (the inputs the pipeline builds), per-phase
+         timings and the contact stage's own breakdown.
 synth:   synthetic push sessions (service.synth physics only): support-function error on the contacted faces.
 
 Loss weights: PLL's, except the penetration weight ``--w-pen`` (default 50 = ``ContactConfig.tosses()``).
@@ -224,9 +227,69 @@ def bench_synth(args) -> dict:
     return res
 
 
+def bench_pipeline_input(args) -> dict:
+    """The contact stage on the inputs the pipeline gives it: synthetic session -> ingest -> tracking -> contact,
+    each phase timed. ``--preset tiny`` (160x120, 60 frames) or ``full`` (640x480, 300 frames = 10 s);
+    ``--config fast|default`` for both tracking and contact (as the pipeline's presets)."""
+    import dataclasses
+    import tempfile
+
+    from service.contact import inputs_from_tracking
+    from service.session import ingest
+    from service.synth import make_session
+    from service.synth.objects import make_object
+    from service.synth.types import SynthSpec
+    from service.tracking import run as tracking_run
+    from service.tracking.types import TrackingConfig, TrackingInputs
+
+    tmp = Path(tempfile.mkdtemp(prefix="contact_bench_"))
+    spec = SynthSpec(preset=args.preset, seed=args.seed)
+    times = {}
+    t = time.perf_counter()
+    make_session(spec, tmp / "raw")
+    times["synth_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    session = ingest(tmp / "raw", tmp / "ingested")
+    times["ingest_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    tr = tracking_run(TrackingInputs(session), TrackingConfig.fast() if args.config == "fast" else TrackingConfig())
+    times["tracking_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    inp = inputs_from_tracking(session, tr, tr.visible_points_O, session.mass)
+    times["contact_inputs_s"] = time.perf_counter() - t
+    cfg = ContactConfig.fast() if args.config == "fast" else ContactConfig()
+    if args.contact_epochs:
+        cfg = dataclasses.replace(cfg, epochs=args.contact_epochs)
+    t = time.perf_counter()
+    out = run(inp, cfg)
+    times["contact_s"] = time.perf_counter() - t
+    m = out.metrics
+    Vl = np.asarray(out.physible_mesh.vertices)
+    Vt = np.asarray(make_object(spec.object).mesh.vertices)
+    n_tr = int(m["transitions"])
+    n_vis = 0 if inp.visible_points_O is None else len(inp.visible_points_O)
+    print(f"session {args.preset} ({spec.object}/{spec.interaction}, seed {args.seed}), config {args.config}: "
+          f"{n_tr} transitions in {len(inp.states)} stretch(es), {n_vis} visible points, "
+          f"{0 if inp.init_vertices_O is None else len(inp.init_vertices_O)} initial vertices")
+    print("phases: " + ", ".join(f"{k[:-2]} {v:.1f} s" for k, v in times.items()))
+    print(f"contact: {m['wall_time_s']:.1f} s = setup+pre-fit {m['time_setup_pretrain_s']:.1f} s + training "
+          f"{m['time_train_s']:.1f} s ({int(m['time_epochs'])}/{cfg.epochs} epochs, best {int(m['best_epoch'])}, "
+          f"{m['time_s_per_epoch']:.3f} s/epoch; solver {m['time_solver_s']:.1f} s, hull+closest points "
+          f"{m['time_hull_s']:.1f} s, forward/backward {m['time_forward_backward_s']:.1f} s) + final pass "
+          f"{m['time_final_pass_s']:.1f} s; torch threads in the stage {cfg.threads}")
+    print(f"learned extents {np.round(np.ptp(Vl, axis=0), 3)} m, true object extents {np.round(np.ptp(Vt, axis=0), 3)} m "
+          f"(the object frame of tracking is not the mesh frame: compare sizes only)")
+    return {**times, **{f"contact_{k}": v for k, v in m.items()}, "learned_extents_m": np.ptp(Vl, axis=0).tolist(),
+            "true_extents_m": np.ptp(Vt, axis=0).tolist()}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("what", choices=["cube", "tagslam", "speed", "synth"])
+    ap.add_argument("what", choices=["cube", "tagslam", "speed", "synth", "pipeline-input"])
+    ap.add_argument("--preset", default="full", choices=["tiny", "small", "full"], help="pipeline-input: session size")
+    ap.add_argument("--config", default="default", choices=["fast", "default"], help="pipeline-input: stage presets")
+    ap.add_argument("--seed", type=int, default=3, help="pipeline-input: synthetic session seed")
+    ap.add_argument("--contact-epochs", type=int, default=0, help="pipeline-input: override the preset's epochs")
     ap.add_argument("--sizes", type=int, nargs="+", default=[2, 4, 8, 16, 32])
     ap.add_argument("--steps", type=int, default=400, help="Adam steps per training run (epochs derived)")
     ap.add_argument("--epochs", type=int, default=300)
@@ -242,7 +305,8 @@ def main() -> None:
     if args.threads:
         torch.set_num_threads(args.threads)
     print("command: python benchmarks/contact.py " + " ".join(sys.argv[1:]))
-    fn = {"cube": bench_cube, "tagslam": bench_tagslam, "speed": bench_speed, "synth": bench_synth}[args.what]
+    fn = {"cube": bench_cube, "tagslam": bench_tagslam, "speed": bench_speed, "synth": bench_synth,
+          "pipeline-input": bench_pipeline_input}[args.what]
     res = fn(args)
     if args.out:
         args.out.write_text(json.dumps(res, indent=1))
