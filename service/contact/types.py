@@ -115,5 +115,5 @@ class ContactConfig:
 
     @classmethod
     def fast(cls) -> "ContactConfig":
-        return cls(width=32, epochs=60, pretrain_steps=100, solver_max_iters=100, export_grid=6, min_epochs=20,
+        return cls(width=32, epochs=40, pretrain_steps=100, solver_max_iters=100, export_grid=6, min_epochs=20,
                    patience=10, max_vision_points=500)
