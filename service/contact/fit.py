@@ -1,9 +1,10 @@
 """Training loop and the stage entry point ``run`` of contact-implicit learning (see ``learn.py`` for the loss).
 
-Per epoch: shuffle the transitions, for each batch build the detached hull (only if a sphere contact or
-the vision term needs it), solve the impulse problem for the batch (warm-started from the impulses of the
-previous epoch), take one Adam step on the loss at the optimum. The parameters of the epoch with the lowest
-mean loss are kept. Afterwards every transition is run once more to get impulses, residuals and the
+Per epoch: export the detached hull once (only if a sphere contact or the vision term needs it) and compute
+on it the outward directions toward all sphere centres and all visible points; shuffle the transitions; for
+each batch solve the impulse problem (warm-started from the impulses of the previous epoch) and take one Adam
+step on the loss at the optimum. Stop early on a plateau of the epoch loss; the parameters of the epoch with
+the lowest mean loss are kept. Afterwards every transition is run once more to get impulses, residuals and the
 physible set.
 """
 
