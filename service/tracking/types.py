@@ -78,6 +78,7 @@ class TrackingConfig:
     sdf_frames: int = 30  # frames whose rays supervise the SDF
     sdf_stride: int = 3  # pixel stride of the rays
     sdf_ring_px: int = 30  # dilation of the mask for free-space rays
+    sdf_erode_px: int = 2  # erosion of the mask for object rays
     sdf_denoise: float = 0.015  # object rays farther than this from the model are dropped
     visible_samples: int = 3000  # samples on the convex hull of the visible mesh (plus its vertices)
     visible_depth_tol: float = 0.01  # |z_render − z_obs| for the visibility check

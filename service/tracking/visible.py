@@ -38,6 +38,8 @@ def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng
     ``service.tracking.tracker.FreeSpace``; object points some keyframe saw through are dropped."""
     from service.tracking.tracker import near_effector
 
+    import cv2
+
     K = session.K
     frames_in = []
     for i in frames:
@@ -46,7 +48,11 @@ def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng
         X_OC = X_inv(X_WO[i]) @ session.X_WC
         grid = np.zeros(mask.shape, bool)
         grid[::cfg.sdf_stride, ::cfg.sdf_stride] = True
-        v, u = np.nonzero(mask & (depth > 0) & grid)
+        m_obj = mask
+        if cfg.sdf_erode_px > 0:  # mask edges mix object and background depth (edge fattening of depth sensors)
+            k = 2 * cfg.sdf_erode_px + 1
+            m_obj = cv2.erode(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))) > 0
+        v, u = np.nonzero(m_obj & (depth > 0) & grid)
         d = depth[v, u]
         P_C = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], 1)
         P_O = P_C @ X_OC[:3, :3].T + X_OC[:3, 3]
