@@ -121,8 +121,10 @@ def fuse(
     cfg: FusionConfig,
     *,
     progress: Progress = None,
+    halfspace_O: np.ndarray | None = None,
 ) -> FusionOutputs:
-    """The fusion pass on prepared rays (no session I/O); see the module docstring."""
+    """The fusion pass on prepared rays (no session I/O); see the module docstring. ``halfspace_O``: optional
+    plane (n, b) in O; where ``n·p + b > 0`` is outside the object (space below the table at frame 0)."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(cfg.seed)
     vis = rays.surface_points_O
@@ -173,7 +175,8 @@ def fuse(
             progress(0.05 + 0.9 * frac, msg)
 
     sdf_cfg = replace(cfg.sdf, seed=cfg.seed)
-    grid = fit_sdf(rays, sdf_cfg, init=init, extra_losses=[losses], bounds_O=bounds, progress=fit_progress)
+    grid = fit_sdf(rays, sdf_cfg, init=init, extra_losses=[losses], bounds_O=bounds, progress=fit_progress,
+                   halfspace_O=halfspace_O)
     t_fit = time.perf_counter() - t0 - t_prep
     mesh = extract_mesh(grid)
     if mesh.is_empty:
@@ -213,6 +216,11 @@ def run(inputs: FusionInputs, cfg: FusionConfig, *, progress: Progress = None) -
     t0 = time.perf_counter()
     rays = session_rays(inputs.session, X_WO, tracked, cfg, inputs.visible_sdf)
     t_rays = time.perf_counter() - t0
+    halfspace = None
+    if cfg.below_table_outside:  # the object rests on the table at frame 0: nothing of it lies below
+        from service.tracking.visible import below_table_halfspace
+
+        halfspace = below_table_halfspace(X_WO[0], float(inputs.session.table_height))
     out = fuse(
         rays,
         inputs.visible_sdf,
@@ -221,6 +229,7 @@ def run(inputs: FusionInputs, cfg: FusionConfig, *, progress: Progress = None) -
         inputs.physible_mesh,
         cfg,
         progress=progress,
+        halfspace_O=halfspace,
     )
     out.metrics["time_rays_s"] = t_rays
     return out

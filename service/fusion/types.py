@@ -110,6 +110,7 @@ class FusionConfig:
     anchor_tol: float = 1e-3  # m
     max_anchors: int = 1000  # anchors kept (random subset) to bound the hyperplane pool
     max_visible_points: int = 20_000  # near-surface pool for the convexity pairs
+    below_table_outside: bool = True  # the object rests on the table at frame 0: space below it is outside
 
     def __post_init__(self):
         if self.init not in ("visible", "hull"):

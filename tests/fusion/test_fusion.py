@@ -150,3 +150,18 @@ def test_flat_view_without_contacts_falls_back_to_visible_start():
     out = fuse(rays, visible, np.zeros((0, 3)), np.zeros((0, 3)), None, cfg)
     assert out.mesh.to_trimesh().is_watertight
     assert chamfer(out.mesh, box_mesh()) < 0.004  # it kept the (here exact) visible start
+
+
+def test_halfspace_below_the_table_stays_outside(scene):
+    """A plane through the box (z_O = -0.01): the fused geometry keeps nothing on its outer side."""
+    from service.fusion import fuse
+
+    inputs, visible, _ = scene
+    rays = session_rays(inputs.session, inputs.X_WO, inputs.tracked, CFG)
+    plane = np.array([0.0, 0.0, -1.0, -0.01])  # n·p + b > 0  <=>  z < -0.01
+    out = fuse(rays, visible, inputs.physible_points_O, inputs.physible_normals_O, inputs.physible_mesh, CFG,
+               halfspace_O=plane)
+    z = out.mesh.vertices[:, 2]
+    assert z.min() > -0.01 - out.sdf.voxel
+    assert z.max() > HALF[2] - 0.004  # the top is still there
+    assert out.mesh.to_trimesh().is_watertight
