@@ -11,7 +11,8 @@ import pytest
 
 from service.session import ingest
 
-REAL = Path("/work/shared/data/real/franka_cube_rgbd_sequence")
+# ``shared/`` sits beside the repository (CI clones it there too)
+REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "franka_cube_rgbd_sequence"
 
 
 @pytest.mark.skipif(not REAL.is_dir(), reason="real Franka RGB-D sequence not available")
