@@ -43,7 +43,8 @@ from service.contact.simulate import Body, box_vertices, rollout_trajectories  #
 from service.contact.types import ContactConfig, ContactInputs  # noqa: E402
 from service.session.types import Friction  # noqa: E402
 
-DATA = Path("/work/shared/data/real")
+SHARED = Path(__file__).resolve().parents[2] / "shared"  # shared/ sits beside the repository
+DATA = Path(SHARED, "data/real")
 CUBE_HALF = 0.0524
 CUBE_MASS = 0.37
 

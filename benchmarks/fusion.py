@@ -6,15 +6,15 @@ default ``FusionConfig`` (wall and CPU time: on a shared machine the CPU time is
 estimate of the wall time on an idle one) and the chamfer distance (two-way mean, m) of the vision-only and fused
 meshes to the true box, plus, with --compare, the sampling-extent and initialisation variants.
 
-    /work/venv/bin/python benchmarks/fusion.py [--frames 300] [--compare]
+    python benchmarks/fusion.py [--frames 300] [--compare]
 
 With ``--data DIR --sha SHA`` it instead reruns fusion variants on a session already processed by the
 flow (``DIR`` = the flow's data folder holding ``sessions/`` and ``artifacts/``; the newest stored tracking
 and contact outputs are used) and scores each fused mesh with ``service.evaluation`` against the
 session's ground truth, as the report does:
 
-    /work/venv/bin/python benchmarks/pipeline.py --work W --preset fast     # process a synthetic session
-    /work/venv/bin/python benchmarks/fusion.py --data W/data --sha <session sha256>
+    python benchmarks/pipeline.py --work W --preset fast     # process a synthetic session
+    python benchmarks/fusion.py --data W/data --sha <session sha256>
 """
 
 from __future__ import annotations

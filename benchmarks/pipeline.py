@@ -2,10 +2,10 @@
 ``flows.process_session``; prints per-stage timings and peak memory against the targets
 (≤ 180 s wall, ≤ 4 GB peak resident memory). Never fails on time: it prints figures.
 
-    /work/venv/bin/python benchmarks/pipeline.py                      # generate + whole flow
-    /work/venv/bin/python benchmarks/pipeline.py --session DIR        # an existing session folder
-    /work/venv/bin/python benchmarks/pipeline.py --preset fast        # the reduced pipeline preset
-    /work/venv/bin/python benchmarks/pipeline.py --stage evaluation   # the evaluation stage alone, with the
+    python benchmarks/pipeline.py                      # generate + whole flow
+    python benchmarks/pipeline.py --session DIR        # an existing session folder
+    python benchmarks/pipeline.py --preset fast        # the reduced pipeline preset
+    python benchmarks/pipeline.py --stage evaluation   # the evaluation stage alone, with the
                                                                       # true model for every method
 
 The session is generated once into ``--work`` (default ``/tmp/vysics-bench-pipeline``) and reused.
@@ -139,7 +139,7 @@ def main(argv=None) -> int:
     ap.add_argument("--stage", choices=["all", "evaluation"], default="all")
     ap.add_argument("--preset", default=None, help="pipeline preset: default | fast (default: VYSICS_PRESET)")
     a = ap.parse_args(argv)
-    cmd = "/work/venv/bin/python benchmarks/pipeline.py " + " ".join(shlex.quote(x) for x in (argv or sys.argv[1:]))
+    cmd = "python benchmarks/pipeline.py " + " ".join(shlex.quote(x) for x in (argv or sys.argv[1:]))
     a.work.mkdir(parents=True, exist_ok=True)
     # the flow's data (artifacts, jobs, Prefect's embedded database) go under the work folder
     os.environ.setdefault("VYSICS_DATA_DIR", str((a.work / "data").resolve()))

@@ -8,8 +8,8 @@ Real data: base model = the true-size cube (side 0.1048 m, mass 0.37 kg, μ 0.15
 inertia m s²/6), table at z = 0, no robot. Tosses are split into training and held-out tosses
 (seeded); every figure printed for "held-out" is on tosses the fits never saw.
 
-    /work/venv/bin/python benchmarks/residuals.py real [--max-tosses N] [--plots DIR]
-    /work/venv/bin/python benchmarks/residuals.py synthetic [--seeds 1 2 3 4 5]
+    python benchmarks/residuals.py real [--max-tosses N] [--plots DIR]
+    python benchmarks/residuals.py synthetic [--seeds 1 2 3 4 5]
 """
 
 from __future__ import annotations
@@ -23,7 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
-REAL = Path("/work/shared/data/real/contactnets_cube_toss/data.npz")
+SHARED = Path(__file__).resolve().parents[2] / "shared"  # shared/ sits beside the repository
+REAL = Path(SHARED, "data/real/contactnets_cube_toss/data.npz")
 SIDE, MASS, MU = 0.1048, 0.37, 0.15
 TOSS_CANDIDATES = ("gravity_scale", "time_scale", "table_tilt", "table_offset", "restitution",
                    "linear_damping", "angular_damping", "friction_table", "com_offset")

@@ -1,11 +1,11 @@
 """Session ingest speed on a full-size session built from the real Franka RGB-D sequence.
 
-Builds a `vysics-session/1` folder from /work/shared/data/real/franka_cube_rgbd_sequence (363 frames,
+Builds a `vysics-session/1` folder from shared/data/real/franka_cube_rgbd_sequence (363 frames,
 640x480: JPEG colour, 16-bit depth, 8-bit masks, real intrinsics) with a synthetic 1 kHz robot log, then
 times: sha256_of(folder), ingest(folder), ingest(.tgz), load_session, and table detection on
 640x480 synthetic depth (5 frames). Prints the figures; never fails on time.
 
-    /work/venv/bin/python benchmarks/session_ingest.py
+    python benchmarks/session_ingest.py
 """
 
 from __future__ import annotations
@@ -25,7 +25,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from service.session import ingest, load_session, sha256_of  # noqa: E402
 from service.session.table import detect_table_plane  # noqa: E402
 
-REAL = Path("/work/shared/data/real/franka_cube_rgbd_sequence")
+SHARED = Path(__file__).resolve().parents[2] / "shared"  # shared/ sits beside the repository
+REAL = Path(SHARED, "data/real/franka_cube_rgbd_sequence")
 
 
 def build(folder: Path, n: int) -> None:

@@ -5,8 +5,8 @@ For each requested preset, generates sessions (noise on, heavy occlusion) and pr
 with noise off (masked depth back-projected with K and T_world_camera, distance to the true mesh at
 the true pose, a few frames). Prints the figures; never fails on time.
 
-    /work/venv/bin/python benchmarks/synth_lab.py                 # tiny and full, one session each
-    /work/venv/bin/python benchmarks/synth_lab.py --presets tiny --objects all --interactions all
+    python benchmarks/synth_lab.py                 # tiny and full, one session each
+    python benchmarks/synth_lab.py --presets tiny --objects all --interactions all
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ def main(argv=None) -> int:
     ap.add_argument("--occlusion", default="heavy")
     ap.add_argument("--no-geometry", action="store_true")
     a = ap.parse_args(argv)
-    cmd = "/work/venv/bin/python benchmarks/synth_lab.py " + " ".join(shlex.quote(x) for x in (argv if argv is not None else sys.argv[1:]))
+    cmd = "python benchmarks/synth_lab.py " + " ".join(shlex.quote(x) for x in (argv if argv is not None else sys.argv[1:]))
     objects = OBJECT_KINDS if a.objects == "all" else tuple(a.objects.split(","))
     inters = INTERACTIONS if a.interactions == "all" else tuple(a.interactions.split(","))
     print(f"# {cmd}")

@@ -6,13 +6,13 @@ the fixed body-frame offset X_OG = X_WO(0)⁻¹ X_WG(0); visible-surface accurac
 vertices of the visible mesh to the true surface (all vertices, and those in voxels with direct depth support);
 targets: median rotation ≤ 2°, median translation ≤ 5 mm, worst ≤ 5° / 15 mm, surface ≤ 3 mm, ≤ 60 s, ≤ 3 GB.
 
-Real: the Franka cube RGB-D video (/work/shared/data/real/franka_cube_rgbd_sequence), no robot data: W is put
+Real: the Franka cube RGB-D video (shared/data/real/franka_cube_rgbd_sequence), no robot data: W is put
 on the table plane found in frame 0 by RANSAC (table at z = 0): poses against the shipped BundleSDF estimates after a fixed body-frame offset, excluding BundleSDF's
 frozen frames 0287–0360, and the cube's size from the oriented box of the visible mesh (true edge 0.1048 m).
 
-    /work/venv/bin/python benchmarks/tracking.py                 # synthetic set + real video
-    /work/venv/bin/python benchmarks/tracking.py --only synth    # or: --only real
-    /work/venv/bin/python benchmarks/tracking.py --one DIR       # one synthetic session folder
+    python benchmarks/tracking.py                 # synthetic set + real video
+    python benchmarks/tracking.py --only synth    # or: --only real
+    python benchmarks/tracking.py --one DIR       # one synthetic session folder
 
 Each session runs in a fresh process so that its peak RSS (resource.getrusage) is its own. Timings on a shared
 machine are inflated; the load average and the process CPU time (≈ the wall time on an idle machine, the stage
@@ -33,7 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
-REAL = Path("/work/shared/data/real/franka_cube_rgbd_sequence")
+SHARED = Path(__file__).resolve().parents[2] / "shared"  # shared/ sits beside the repository
+REAL = Path(SHARED, "data/real/franka_cube_rgbd_sequence")
 CASES = [  # (object, interaction, seed): none of them used in development
     ("milk_carton", "push", 701),
     ("l_block", "pivot", 702),

@@ -1,6 +1,6 @@
 """Getting trajectories into contact learning: from tracked sessions, and from trajectory files (.npz + meta.json).
 
-Trajectory file layout (as /work/shared/data/real): ``data.npz`` with ``states`` (N,13) float
+Trajectory file layout (as shared/data/real): ``data.npz`` with ``states`` (N,13) float
 [qw qx qy qz | x y z | wx wy wz (body) | vx vy vz (world)], ``offsets`` (n+1,) int with offsets[0] = 0 and
 offsets[-1] = N, optional ``ids`` (n,) int; ``meta.json`` next to it with ``dt_s`` > 0. Quaternion signs are
 made continuous per trajectory (they may flip between frames in some sources).
