@@ -201,7 +201,7 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None) ->
         loss.backward()
         opt.step()
         if progress is not None and (step % 20 == 0 or step == cfg.steps - 1):
-            progress((step + 1) / cfg.steps, f"sdf step {step + 1}/{cfg.steps} loss {float(loss):.4g}")
+            progress((step + 1) / cfg.steps, f"sdf step {step + 1}/{cfg.steps} loss {float(loss.detach()):.4g}")
 
     vals = values.detach().numpy().astype(np.float32)
     if hs is not None:
