@@ -129,24 +129,23 @@ def check_rgb(info: ImageInfo, rel: str) -> None:
         raise InvalidSession(rel, f"{info.kind} JPEG, expected a colour (3-channel) image")
 
 
+def _check_single_channel_png(info: ImageInfo, rel: str, what: str, bits: int) -> None:
+    if info.fmt != "png":
+        raise InvalidSession(rel, f"JPEG {what}, expected a single-channel {bits}-bit PNG")
+    if info.channels != 1:
+        raise InvalidSession(rel, f"{info.kind} image with {info.channels} channels, expected single-channel {bits}-bit")
+    if info.bit_depth != bits:
+        raise InvalidSession(rel, f"{info.bit_depth}-bit image, expected {bits}-bit")
+
+
 def check_depth(info: ImageInfo, rel: str) -> None:
     """Depth frame: single-channel 16-bit PNG."""
-    if info.fmt != "png":
-        raise InvalidSession(rel, "JPEG depth frame, expected a single-channel 16-bit PNG")
-    if info.channels != 1:
-        raise InvalidSession(rel, f"{info.kind} image with {info.channels} channels, expected single-channel 16-bit")
-    if info.bit_depth != 16:
-        raise InvalidSession(rel, f"{info.bit_depth}-bit image, expected 16-bit")
+    _check_single_channel_png(info, rel, "depth frame", 16)
 
 
 def check_mask(info: ImageInfo, rel: str) -> None:
     """Mask: single-channel 8-bit PNG."""
-    if info.fmt != "png":
-        raise InvalidSession(rel, "JPEG mask, expected a single-channel 8-bit PNG")
-    if info.channels != 1:
-        raise InvalidSession(rel, f"{info.kind} image with {info.channels} channels, expected single-channel 8-bit")
-    if info.bit_depth != 8:
-        raise InvalidSession(rel, f"{info.bit_depth}-bit image, expected 8-bit")
+    _check_single_channel_png(info, rel, "mask", 8)
 
 
 def decode_check(path: Path, rel: str, info: ImageInfo, kind: str):
