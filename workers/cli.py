@@ -335,15 +335,28 @@ def cmd_bench(a: argparse.Namespace) -> int:
                       quiet=True)
         return json.loads((Path(res["bundle_dir"]) / "report.json").read_text())
 
-    bar = _Bar("bench")
     if a.sessions:
         sessions = Path(a.sessions)
     else:  # every object kind × the given seeds, heavy occlusion (seeds other than the ones tests tune on)
-        seeds = [int(x) for x in str(a.seeds).split(",") if x.strip()]
+        from service.synth import OBJECT_KINDS
+
+        try:
+            seeds = [int(x) for x in str(a.seeds).split(",") if x.strip()]
+        except ValueError:
+            _err(f"--seeds {a.seeds!r}: expected comma-separated integers")
+            return EXIT_INVALID
+        if not seeds:
+            _err("--seeds: expected at least one seed")
+            return EXIT_INVALID
         sessions = bench.default_specs(a.preset, seeds)
         if a.objects:
-            want = {x.strip() for x in a.objects.split(",")}
+            want = {x.strip() for x in a.objects.split(",") if x.strip()}
+            unknown = sorted(want - set(OBJECT_KINDS))
+            if unknown or not want:
+                _err(f"--objects: unknown {unknown}, expected names from {list(OBJECT_KINDS)}")
+                return EXIT_INVALID
             sessions = [s for s in sessions if s.object in want]
+    bar = _Bar("bench")
     res = run_bench(sessions, out, preset=a.preset, process=process_one, progress=bar)
     bar.close()
     print(f"results: {out.resolve()} ({len(res.rows)} rows, {len(res.failures)} failed sessions)")

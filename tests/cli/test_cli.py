@@ -127,3 +127,9 @@ def test_fit_dynamics_runs_contact_and_residual_tasks(tmp_path, prefect_server):
     res = rep["residuals"]
     assert {"candidates", "accepted", "error_before", "error_after"} <= set(res)
     assert all(c["effect"] and isinstance(c["accepted"], bool) for c in res["candidates"])
+
+
+@pytest.mark.parametrize("args,needle", [(["--seeds", "a,b"], "--seeds"), (["--objects", "teapot"], "--objects: unknown")])
+def test_bench_refuses_bad_selection(tmp_path, capsys, args, needle):
+    assert main(["bench", "--out", str(tmp_path / "b"), "--data-dir", str(tmp_path / "d"), *args]) == 2
+    assert needle in capsys.readouterr().err
