@@ -351,6 +351,10 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         if i % 10 == 0:
             _report(progress, 0.6 * i / N, f"tracking frame {i}/{N}, {len(keyframes)} keyframes")
 
+    if cfg.ba_iters > 0 and len(keyframes) > 2:
+        _report(progress, 0.61, f"bundle adjustment of {len(keyframes)} keyframes")
+        _bundle_adjust(keyframes, cfg, rng, carver)
+        model = _model_from(keyframes, cfg.model_voxel)
     if cfg.refine_rounds > 0 and len(keyframes) > 2:
         _report(progress, 0.62, "refining keyframe poses")
         for _ in range(cfg.refine_rounds):
@@ -379,6 +383,30 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 _report(progress, 0.62 + 0.18 * i / N, f"final registration {i}/{N}")
     X = interpolate_untracked(X, tracked)
     return TrackResult(X, tracked, frac, rmse, model, keyframes, carver)
+
+
+def _bundle_adjust(keyframes: list[Keyframe], cfg: TrackingConfig, rng: np.random.Generator,
+                   carver: "FreeSpace | None") -> None:
+    """Joint refinement of the keyframe poses (``service.tracking.posegraph``); keyframe 0 stays fixed."""
+    from service.tracking.posegraph import bundle_adjust
+
+    feats = {}
+    if cfg.ba_features:
+        for a in range(len(keyframes)):
+            for b in range(a + 1, len(keyframes)):
+                ka, kb = keyframes[a], keyframes[b]
+                m = _match(ka.desc, kb.desc)
+                if len(m) >= 6 and ka.kp_W is not None and kb.kp_W is not None:
+                    feats[(a, b)] = (ka.kp_W[m[:, 0]], kb.kp_W[m[:, 1]])
+    X_OW = np.stack([X_inv(kf.X_WO) for kf in keyframes])
+    res = bundle_adjust(X_OW, [kf.P_W for kf in keyframes], [kf.N_W for kf in keyframes], feats,
+                        iters=cfg.ba_iters, huber=cfg.ba_huber, w_feat=cfg.ba_w_feat, rng=rng)
+    for kf, X_ow in zip(keyframes[1:], res.X_OW[1:]):
+        kf.X_WO = X_inv(X_ow)
+        kf.P_O = kf.P_W @ X_ow[:3, :3].T + X_ow[:3, 3]
+        kf.kp_O = kf.kp_W @ X_ow[:3, :3].T + X_ow[:3, 3]
+        if carver is not None:
+            carver.update_pose(kf.index, kf.X_WO)
 
 
 def _model_from(keyframes: list[Keyframe], voxel: float) -> ObjectModel:

@@ -69,6 +69,10 @@ class TrackingConfig:
     kf_min_inlier_frac: float = 0.5
     grow_dist: float = 0.015  # points farther than this from the model are not added (mask noise)
     refine_rounds: int = 2  # leave-one-out keyframe refinement rounds (0: off)
+    ba_iters: int = 10  # keyframe bundle adjustment (service.tracking.posegraph) iterations (0: off)
+    ba_features: bool = True  # ORB matches between keyframes enter the bundle adjustment
+    ba_huber: float = 0.002  # Huber threshold of its point-to-plane residuals
+    ba_w_feat: float = 0.3  # weight of its feature terms
     final_pass: bool = True  # re-register every frame against the final model
     final_iters: int = 6
     # velocities
