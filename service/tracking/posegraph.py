@@ -13,7 +13,8 @@ iteratively reweighted Gauss–Newton with Levenberg damping on the stacked δ (
 equations), correspondences re-found at every outer iteration (multi-view ICP; Pulli 1999, "Multiview
 registration for large data sets"; the global pose-graph refinement of BundleSDF, Wen et al. 2023, with
 point-to-plane and feature terms in place of its learned ones). Keyframe 0 is not perturbed, which removes the
-gauge freedom.
+gauge freedom; a weak prior w_prior·N_k·‖[ℓ·Log(R_k R_k,0ᵀ), t_k − R_k R_k,0ᵀ t_k,0]‖² toward the tracked poses
+(ℓ = 0.1 m) holds directions that no overlap constrains (a keyframe that sees a single plane).
 """
 
 from __future__ import annotations
@@ -60,6 +61,7 @@ def bundle_adjust(
     feat_scale: float = 0.005,
     w_point: float = 0.05,
     max_points: int = 600,
+    w_prior: float = 0.01,
     rng: np.random.Generator | None = None,
 ) -> BAResult:
     """Jointly refine keyframe poses X_OW (K,4,4) from their points P_W[k] (N_k,3) and normals N_W[k] in W.
@@ -70,6 +72,7 @@ def bundle_adjust(
     rng = rng or np.random.default_rng(0)
     K = len(X_OW)
     X = np.array(X_OW, float).copy()
+    X_start = X.copy()
     if K < 2:
         return BAResult(X, 0, 0.0, 0.0)
     # subsample each keyframe's points
@@ -84,7 +87,7 @@ def bundle_adjust(
     decay = (dist_min / dist0) ** (1.0 / max(iters - 1, 1))
     cost0 = cost = 0.0
     n_pairs = 0
-    lam = 1e-4
+    lam = 1e-3
     for it in range(iters):
         thr = max(dist_min, dist0 * decay**it)
         PO = [p @ x[:3, :3].T + x[:3, 3] for p, x in zip(P, X)]
@@ -149,6 +152,16 @@ def bundle_adjust(
             H[ib, ia] += lamf * np.einsum("nki,nkj->ij", Jw, Ja)
             g[ib] += lamf * np.einsum("nki,nk->i", Jw, e)
             g[ia] += lamf * np.einsum("nki,nk->i", Jaw, e)
+        # weak prior toward the starting poses: keeps directions that no overlap constrains (a keyframe seeing
+        # one plane only) where tracking put them; residual [ℓ·Log(R R0ᵀ), t − R R0ᵀ t0], ℓ = 0.1 m
+        for k in range(1, K):
+            D_k = X[k] @ np.linalg.inv(X_start[k])
+            e = np.concatenate([0.1 * _so3_log(D_k[:3, :3]), D_k[:3, 3]])
+            wk = w_prior * len(P[k])
+            Jd = np.array([0.1, 0.1, 0.1, 1.0, 1.0, 1.0])
+            ik = slice(6 * k, 6 * k + 6)
+            H[ik, ik] += wk * np.diag(Jd * Jd)
+            g[ik] += wk * Jd * e
         c = tot / max(nres, 1)
         if it == 0:
             cost0 = c
@@ -171,6 +184,12 @@ def bundle_adjust(
             X[k] = _exp_se3(dk / s) @ X[k]
             X[k][:3, :3] = orthonormalize(X[k][:3, :3])
     return BAResult(X, n_pairs, cost0, cost)
+
+
+def _so3_log(R: np.ndarray) -> np.ndarray:
+    from service.transforms import so3_log
+
+    return np.asarray(so3_log(R), float)
 
 
 def _add_pair(H: np.ndarray, g: np.ndarray, a: int, b: int, Hb: np.ndarray, gb: np.ndarray) -> None:
