@@ -184,6 +184,45 @@ def _clock_guess(stats, model):
     return (0.0,)
 
 
+# --- geometry scale (a correction of a learned model, used as a nuisance parameter) ---------------
+
+def principal_axes(model: ObjectModel) -> np.ndarray:
+    """(3,3) columns = principal axes (PCA) of the collision vertices about the CoM, frame O."""
+    from service.residuals.modes import collision_vertices
+
+    V = collision_vertices(model) - np.asarray(model.com_O, float)
+    _, _, Vt = np.linalg.svd(V - V.mean(0), full_matrices=False)
+    P = Vt.T
+    if np.linalg.det(P) < 0:
+        P[:, 2] = -P[:, 2]
+    return P
+
+
+def scale_model(model: ObjectModel, s) -> ObjectModel:
+    """The model with its geometry scaled by s (3,) along its principal axes about the CoM; the inertia
+    follows (second moments M = ½ tr(I) 1 − I scale as S M S, I = tr(M) 1 − M), mass and CoM unchanged."""
+    s = np.asarray(s, float)
+    if np.allclose(s, 1.0):
+        return model
+    c = np.asarray(model.com_O, float)
+    P = principal_axes(model)
+    A = P @ np.diag(s) @ P.T
+
+    def sc(m):
+        return dataclasses.replace(m, vertices=(np.asarray(m.vertices, float) - c) @ A.T + c)
+
+    I = np.asarray(model.inertia_O, float)
+    M = 0.5 * np.trace(I) * np.eye(3) - I
+    M2 = A @ M @ A.T
+    I2 = np.trace(M2) * np.eye(3) - M2
+    return dataclasses.replace(model, visual=sc(model.visual), collision=tuple(sc(m) for m in model.collision),
+                               inertia_O=0.5 * (I2 + I2.T))
+
+
+def _scale_apply(model, theta):
+    return scale_model(model, theta), {}
+
+
 REGISTRY: dict[str, Effect] = {}
 
 
@@ -211,7 +250,7 @@ register(Effect(
     _tilt_sig, _tilt_guess, _sim_keys(("table_tilt_x", "table_tilt_y")),
     description="table tilt = gravity direction in W: g = R_y(ty) R_x(tx) (0,0,-|g|), rad",
     resolution=(0.003, 0.003),
-    modes=("free_flight", "sliding", "rest"),
+    modes=("free_flight", "sliding", "rest", "robot_contact"),
 ))
 register(Effect(
     "table_offset", ("table_offset",), (-0.01,), (0.01,), (0.0,), _table_sig, _table_guess,
@@ -232,14 +271,14 @@ register(Effect(
     _sim_keys(("linear_damping",)),
     description="viscous linear damping rate b, 1/s: free motion v(t) = v(0) exp(-b t)",
     resolution=(0.05,),
-    modes=("free_flight",),
+    modes=("free_flight", "sliding", "robot_contact"),
 ))
 register(Effect(
     "angular_damping", ("angular_damping",), (0.0,), (5.0,), (0.0,), _ang_damp_sig, _ang_damp_guess,
     _sim_keys(("angular_damping",)),
     description="viscous angular damping rate b, 1/s: free spin w(t) = w(0) exp(-b t)",
     resolution=(0.05,),
-    modes=("free_flight",),
+    modes=("free_flight", "sliding", "robot_contact"),
 ))
 register(Effect(
     "friction_table", ("friction_object_table",), (0.02,), (1.5,), (float("nan"),), _fric_table_sig,
@@ -267,8 +306,30 @@ register(Effect(
     _sim_keys(("clock_offset",)), needs_robot=True,
     description="robot-camera clock offset, s: robot path read at t + delta",
     resolution=(0.005,),
-    modes=("robot_contact",),
+    modes=("robot_contact", "sliding"),
 ))
+
+
+register(Effect(
+    "geometry_scale", ("geometry_scale_1", "geometry_scale_2", "geometry_scale_3"), (0.5,) * 3, (1.3,) * 3,
+    (1.0,) * 3, lambda stats: 0.0, lambda stats, model: (1.0, 1.0, 1.0), _scale_apply,
+    description="scale of the learned geometry along its principal axes (a model correction: nuisance only)",
+    resolution=(0.02,) * 3,
+    modes=("sliding", "rest", "robot_contact"),
+))
+
+register(Effect(
+    "inertia_scale", ("inertia_scale",), (0.4,), (2.5,), (1.0,), lambda stats: 0.0, lambda stats, model: (1.0,),
+    lambda model, th: (dataclasses.replace(model, inertia_O=np.asarray(model.inertia_O, float) * float(th[0])), {}),
+    description="factor on the learned rotational inertia (a model correction: nuisance only)",
+    resolution=(0.05,),
+    modes=("sliding", "rest", "robot_contact"),
+))
+
+# Effects that correct the fitted model rather than add physics: refitted first, as nuisance parameters,
+# when the model was learned from the same session (never accepted as an effect then).
+NUISANCE_LEARNED: tuple[str, ...] = ("geometry_scale", "inertia_scale", "com_offset", "table_offset")
+NUISANCE_ONLY: tuple[str, ...] = ("geometry_scale", "inertia_scale")  # never a candidate effect
 
 
 def is_negligible(effect: Effect, theta, model: ObjectModel) -> bool:

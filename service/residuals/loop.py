@@ -42,7 +42,16 @@ from scipy.stats import binom
 
 from service.errors import InvalidInput
 from service.model import ObjectModel
-from service.residuals.effects import REGISTRY, Effect, apply_effects, fold_into_model, is_negligible, null_params
+from service.residuals.effects import (
+    NUISANCE_LEARNED,
+    NUISANCE_ONLY,
+    REGISTRY,
+    Effect,
+    apply_effects,
+    fold_into_model,
+    is_negligible,
+    null_params,
+)
 from service.residuals.modes import FREE, IMPACT, classify, mode_statistics, object_radius
 from service.residuals.types import (
     MODES,
@@ -319,6 +328,82 @@ def _fit(effect: Effect, guess, base_model, base_effects, chosen, ev: Evaluator,
     return best, loss(best)
 
 
+def _fit_nuisance(names: list[str], model: ObjectModel, base_effects: dict, ev: Evaluator, train: list[Segment],
+                  cfg: ResidualConfig) -> tuple[dict[str, tuple], float, float]:
+    """Joint fit of the nuisance corrections (all their parameters at once, Nelder–Mead from "no change" in
+    coordinates scaled to the bounds) minimising the mean error over all frames of the training blocks.
+    Returns ({name: θ}, E_train before, E_train after); the corrections are kept only when the training
+    error falls by at least ``min_rel_improvement``, otherwise {} is returned."""
+    effs = [REGISTRY[n] for n in names]
+    lo = np.concatenate([e.lower for e in effs])
+    hi = np.concatenate([e.upper for e in effs])
+    x0 = np.concatenate([null_params(e, model) for e in effs])
+    scale = hi - lo
+    sizes = np.cumsum([0] + [len(e.params) for e in effs])
+    cache: dict[tuple, float] = {}
+
+    def unpack(x) -> dict[str, tuple]:
+        th = np.clip(x, lo, hi)
+        return {e.name: tuple(float(v) for v in th[sizes[i]:sizes[i + 1]]) for i, e in enumerate(effs)}
+
+    def loss(z) -> float:
+        x = lo + np.clip(z, 0, 1) * scale
+        key = tuple(np.round(x, 9))
+        if key not in cache:
+            m, sim = apply_effects(model, unpack(x))
+            cache[key] = float(np.nanmean(ev.errors(m, {**base_effects, **sim}, train)))
+        return cache[key]
+
+    z0 = (x0 - lo) / scale
+    e0 = loss(z0)
+    simplex = [z0] + [np.clip(z0 + 0.12 * e, 0, 1) if z0[i] < 0.88 else z0 - 0.12 * e for i, e in enumerate(np.eye(len(lo)))]
+    res = minimize(loss, z0, method="Nelder-Mead",
+                   options={"maxfev": cfg.nuisance_maxiter, "initial_simplex": np.array(simplex), "xatol": 1e-3, "fatol": 1e-7})
+    z = np.clip(res.x, 0, 1)
+    e1 = loss(z)
+    if not (e1 < (1.0 - cfg.min_rel_improvement) * e0):
+        return {}, e0, e0
+    return unpack(lo + z * scale), e0, e1
+
+
+def _refine_joint(nuis: dict[str, tuple], eff: Effect, theta, chosen: dict[str, tuple], input_model: ObjectModel,
+                  input_effects: dict, ev: Evaluator, train: list[Segment], cfg: ResidualConfig) -> tuple[dict[str, tuple], tuple]:
+    """Refit the nuisance corrections together with a candidate effect (Nelder–Mead from the current values,
+    all frames of the training blocks), so that the effect is not biased by corrections that soaked up part
+    of it before it was added (and the corrections are not biased by the missing effect)."""
+    effs = [REGISTRY[n] for n in nuis] + [eff]
+    start = [nuis[n] for n in nuis] + [tuple(theta)]
+    lo = np.concatenate([e.lower for e in effs])
+    hi = np.concatenate([e.upper for e in effs])
+    scale = hi - lo
+    sizes = np.cumsum([0] + [len(e.params) for e in effs])
+    x0 = np.concatenate([np.asarray(v, float) for v in start])
+
+    def unpack(x):
+        th = np.clip(x, lo, hi)
+        return [tuple(float(v) for v in th[sizes[i]:sizes[i + 1]]) for i in range(len(effs))]
+
+    cache: dict[tuple, float] = {}
+
+    def loss(z) -> float:
+        x = lo + np.clip(z, 0, 1) * scale
+        key = tuple(np.round(x, 9))
+        if key not in cache:
+            parts = unpack(x)
+            fix = {e.name: parts[i] for i, e in enumerate(effs[:-1])}
+            m, sim = apply_effects(input_model, {**fix, **chosen, eff.name: parts[-1]})
+            cache[key] = float(np.nanmean(ev.errors(m, {**input_effects, **sim}, train)))
+        return cache[key]
+
+    z0 = (x0 - lo) / scale
+    simplex = [z0] + [np.clip(z0 + 0.06 * e, 0, 1) if z0[i] < 0.94 else z0 - 0.06 * e for i, e in enumerate(np.eye(len(lo)))]
+    res = minimize(loss, z0, method="Nelder-Mead",
+                   options={"maxfev": cfg.nuisance_maxiter, "initial_simplex": np.array(simplex), "xatol": 1e-3, "fatol": 1e-7})
+    z = np.clip(res.x, 0, 1) if loss(res.x) < loss(z0) else z0
+    parts = unpack(lo + z * scale)
+    return {e.name: parts[i] for i, e in enumerate(effs[:-1])}, eff.clip(parts[-1])
+
+
 def _bootstrap_bound(d_seg: np.ndarray, units: np.ndarray, cfg: ResidualConfig, rng, upper: bool = False) -> float:
     """One-sided (1 − α) percentile-bootstrap bound of the mean of per-unit mean improvements."""
     _, inv = np.unique(units, return_inverse=True)
@@ -370,6 +455,14 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
     if unknown:
         raise InvalidInput("ResidualConfig.candidates", f"unknown effects {unknown}; known: {sorted(REGISTRY)}")
     names = [n for n in names if has_robot or not REGISTRY[n].needs_robot]
+    nuis_names = list(cfg.nuisance) if cfg.nuisance is not None else (
+        list(NUISANCE_LEARNED) if inputs.step_residuals is not None else [])
+    bad = [n for n in nuis_names if n not in REGISTRY]
+    if bad:
+        raise InvalidInput("ResidualConfig.nuisance", f"unknown corrections {bad}; known: {sorted(REGISTRY)}")
+    if cfg.candidates is None:
+        names = [n for n in names if n not in NUISANCE_ONLY]
+    names = [n for n in names if n not in nuis_names]
     report(0.0, "classifying contact modes")
     modes = [
         classify(model, tr, inputs.table_height, inputs.robot[k] if inputs.robot is not None else None, cfg)
@@ -392,11 +485,40 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
         ev = Evaluator(simulate, inputs.table_height, rot_scale)
         rng = np.random.default_rng(cfg.seed + 1)
 
-        chosen: dict[str, tuple] = {}
         base_effects = dict(model.effects)
+        input_model = model
         held_frames0 = ev.frame_scalar(model, base_effects, held)
         held_before0 = reduce_blocks(held_frames0)
-        held_cur_frames = held_frames0
+        corrections: dict[str, float] = {}
+        nuis_fix: dict[str, tuple] = {}
+        tr_n: list[Segment] = []
+        nuisance_report: dict = {"names": nuis_names}
+        if nuis_names:
+            report(0.02, "refitting the model's own uncertain parameters (nuisance)")
+            tr_n = list(train)
+            if len(tr_n) > 2 * cfg.max_train_segments:
+                sub = np.random.default_rng(cfg.seed + 99).choice(len(tr_n), 2 * cfg.max_train_segments, replace=False)
+                tr_n = [tr_n[i] for i in sorted(sub)]
+            fix, e0, e1 = _fit_nuisance(nuis_names, model, base_effects, ev, tr_n, cfg)
+            nuis_fix = dict(fix)
+            nuisance_report.update({"train_error_before": e0, "train_error_after": e1, "train_blocks": len(tr_n)})
+            if fix:
+                model, fix_sim = apply_effects(model, fix)
+                base_effects = {**base_effects, **fix_sim}
+                for n, th in fix.items():
+                    corrections.update({k: float(v) for k, v in zip(REGISTRY[n].params, th)})
+                # contact modes of the corrected model (its geometry decides robot contact and table gaps)
+                th_off = float(fix_sim.get("table_offset", 0.0))
+                modes = [
+                    classify(model, tr, inputs.table_height + th_off, inputs.robot[k] if inputs.robot is not None else None, cfg)
+                    for k, tr in enumerate(inputs.trajectories)
+                ]
+                train = [dataclasses.replace(sg, mode=modes[sg.traj][sg.start:sg.stop]) for sg in train]
+                held = [dataclasses.replace(sg, mode=modes[sg.traj][sg.start:sg.stop]) for sg in held]
+        held_cur_frames = ev.frame_scalar(model, base_effects, held) if corrections else held_frames0
+        nuisance_report["heldout_error_after"] = float(reduce_blocks(held_cur_frames).mean())
+        nuisance_report["corrections"] = dict(corrections)
+        chosen: dict[str, tuple] = {}
         final: dict[str, EffectCandidate] = {}
         history: list[dict] = []
         remaining = list(names)
@@ -431,6 +553,18 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
                 rel_after = reduce_blocks([after_frames[i] for i in ho_idx], ho_masks)
                 all_before, all_after = reduce_blocks(held_cur_frames), reduce_blocks(after_frames)
                 ok, why, rel = _decide(rel_before, rel_after, units[ho_idx], cfg, rng)
+                cand_nuis = nuis_fix
+                if ok and nuis_fix:
+                    # joint refit with the corrections, then judged again against the corrected base
+                    cand_nuis, theta = _refine_joint(nuis_fix, eff, theta, chosen, input_model, dict(input_model.effects),
+                                                     ev, tr_n, cfg)
+                    m_after, s_after = apply_effects(input_model, {**cand_nuis, **chosen, name: theta})
+                    after_frames = ev.frame_scalar(m_after, {**dict(input_model.effects), **s_after}, held)
+                    rel_after = reduce_blocks([after_frames[i] for i in ho_idx], ho_masks)
+                    all_after = reduce_blocks(after_frames)
+                    e_train = float(ev.errors(m_after, {**dict(input_model.effects), **s_after}, tr_e, tr_masks).mean())
+                    ok, why, rel = _decide(rel_before, rel_after, units[ho_idx], cfg, rng)
+                    why = why.replace("held-out error", "(refitted with the corrections) held-out error", 1)
                 if ok and all_after.mean() > all_before.mean():
                     ok, why = False, (f"rejected: makes the mean error over all held-out frames worse "
                                       f"({(all_after.mean() - all_before.mean()) * 1e3:+.3f} mm); ") + why.removeprefix("passes; ")
@@ -452,7 +586,9 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
                     heldout_all_after=float(all_after.mean()),
                     blocks={"train": len(tr_e), "heldout": int(len(ho_idx))},
                 )
-                round_res.append((ok, float(rel_before.mean() - rel_after.mean()), cand, theta, after_frames))
+                # ranked by the fall of the error over all held-out frames: a common basis for effects that act
+                # on different frames (an effect on many frames can otherwise outrank the one that explains them)
+                round_res.append((ok, float(all_before.mean() - all_after.mean()), cand, theta, after_frames, cand_nuis))
                 final[name] = cand
                 history.append({"round": rnd + 1, "effect": name, "params": dict(cand.params), "passes": ok,
                                 "heldout_error_before": cand.heldout_error_before,
@@ -462,7 +598,7 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
             passing = [r for r in round_res if r[0]]
             if not passing:
                 break
-            ok, gain, cand, theta, after_frames = max(passing, key=lambda r: r[1])
+            ok, gain, cand, theta, after_frames, cand_nuis = max(passing, key=lambda r: r[1])
             final[cand.effect] = dataclasses.replace(cand, accepted=True, reason="accepted: " + cand.reason.removeprefix("passes; "))
             for r in round_res:
                 if r[0] and r[2].effect != cand.effect:
@@ -470,21 +606,31 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
             chosen[cand.effect] = theta
             remaining.remove(cand.effect)
             held_cur_frames = after_frames
+            if cand_nuis is not nuis_fix:  # the corrections refitted together with the accepted effect
+                nuis_fix = cand_nuis
+                model, fix_sim = apply_effects(input_model, nuis_fix)
+                base_effects = {**dict(input_model.effects), **fix_sim}
+                corrections = {k: float(v) for n, th in nuis_fix.items() for k, v in zip(REGISTRY[n].params, th)}
             if not remaining:
                 break
 
         report(0.92, "errors by mode before/after")
-        new_model, new_sim = apply_effects(model, chosen)
+        sim_model, sim_eff = apply_effects(model, chosen)  # corrected base + effects (what was judged)
+        new_model, new_sim = apply_effects(input_model, chosen)
         accepted_effects: dict[str, float] = {}
         for name, theta in chosen.items():
             accepted_effects.update({k: float(v) for k, v in zip(REGISTRY[name].params, theta)})
         out_model, recording = fold_into_model(new_model, accepted_effects, _carried_keys())
-        overall_b, table_b = ev.by_mode(model, base_effects, held)
-        overall_a, table_a = ev.by_mode(new_model, {**base_effects, **new_sim}, held) if chosen else (overall_b, table_b)
+        overall_b, table_b = ev.by_mode(input_model, dict(input_model.effects), held)
+        overall_c, table_c = ev.by_mode(model, base_effects, held) if corrections else (overall_b, table_b)
+        overall_a, table_a = ev.by_mode(sim_model, {**base_effects, **sim_eff}, held) if chosen else (overall_c, table_c)
         by_mode = {
             "residual": stats,
             "rollout_before": table_b,
             "rollout_after": table_a,
+            "rollout_corrected": table_c,
+            "error_corrected": {**overall_c, "scalar_m": nuisance_report["heldout_error_after"]},
+            "nuisance": nuisance_report,
             "segments": {"train_pool": len(train), "heldout": len(held)},
             "rot_scale_m": rot_scale,
             "rollouts": ev.calls,
@@ -507,6 +653,7 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
             model=out_model,
             series=series,
             recording_effects=recording,
+            corrections=corrections,
         )
     finally:
         if own_sim is not None:

@@ -257,3 +257,4 @@ def mode_statistics(
                 stats[m]["res_lin_tangential"] = float(np.mean(np.linalg.norm(r[sel, 3:5], axis=1)))
                 stats[m]["res_lin_mean"] = [float(x) for x in r[sel, 3:].mean(0)]
     return stats
+

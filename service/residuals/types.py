@@ -115,10 +115,17 @@ class ResidualConfig:
     rest_speed: float = 0.03  # m/s, below this (and touching) the object is at rest
     impact_dv: float = 0.3  # m/s, a velocity jump above this in one step while touching = impact
     sliding_speed: float = 0.03  # m/s tangential contact-point speed above which contact slides
+    # Nuisance refit before judging effects: corrections of the fitted model's own uncertain parameters
+    # (geometry scale, CoM, table height), fitted jointly on the training blocks and never accepted as
+    # effects. None = ``effects.NUISANCE_LEARNED`` when the model was learned from this session
+    # (``step_residuals`` given), else none; () = off.
+    nuisance: tuple[str, ...] | None = None
+    nuisance_maxiter: int = 80  # Nelder-Mead evaluations of the joint nuisance fit
 
     @classmethod
     def fast(cls) -> "ResidualConfig":
-        return cls(fit_maxiter=16, n_bootstrap=500, max_train_segments=6, max_heldout_segments=64, max_effects=2)
+        return cls(fit_maxiter=16, n_bootstrap=500, max_train_segments=6, max_heldout_segments=64, max_effects=2,
+                   nuisance_maxiter=100)
 
 
 def _num(x: float) -> float | None:
@@ -156,6 +163,9 @@ class ResidualOutputs:
     model: Optional[ObjectModel] = None
     recording_effects: dict[str, float] = field(default_factory=dict)  # accepted, not carried by the model
     series: dict[str, np.ndarray] = field(default_factory=dict)  # per-frame data for the plots
+    # nuisance corrections of the fitted model (see ResidualConfig.nuisance): fitted, used as the base the
+    # effects are judged against, reported, not put into ``model``
+    corrections: dict[str, float] = field(default_factory=dict)
 
     def report(self) -> dict:
         """The report.json ``residuals`` block."""
@@ -179,6 +189,7 @@ class ResidualOutputs:
             "accepted": list(self.accepted),
             "effects": dict(self.effects),
             "recording_effects": dict(self.recording_effects),
+            "corrections": dict(self.corrections),
             "error_before": dict(self.error_before),
             "error_after": dict(self.error_after),
             "by_mode": self.by_mode,
