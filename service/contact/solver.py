@@ -39,6 +39,7 @@ class SolverSettings:
     alpha: float = 1.6
     adapt_rho: bool = True
     rho0: float = 1.0
+    norm_floor: float = 1e-2  # see the ρ adaptation
 
 
 @dataclass
@@ -141,7 +142,13 @@ def solve_cone_qp(
         rp, rd, zn = rp[keep], rd[keep], zn[keep]
         Ba = len(active)
         if settings.adapt_rho:
-            ratio = torch.sqrt((rp / (zn + 1e-30)) / (rd / (rho * ua.abs().amax(-1)) + 1e-30) + 1e-30)
+            # OSQP rule. The dual residual is normalised by ‖y‖ (y = ρu), as long as y is not negligible against
+            # max(‖Px‖, ‖q‖): with y = 0 (z still inside the cones, e.g. resting contacts) ‖y‖ alone drove ρ back
+            # and forth between its bounds and the solver returned λ = 0. The same guard for ‖z‖ vs ‖x‖.
+            fl = settings.norm_floor
+            dnorm = torch.maximum(rho * ua.abs().amax(-1), fl * dn[keep]).clamp_min(1e-30)
+            pnorm = torch.maximum(zn, fl * x[keep].abs().amax(-1)).clamp_min(1e-30)
+            ratio = torch.sqrt((rp / pnorm) / (rd / dnorm + 1e-30) + 1e-30)
             new_rho = (rho * ratio).clamp(1e-6, 1e6)
             change = (new_rho > 5 * rho) | (new_rho < rho / 5)
             if bool(change.any()):

@@ -82,3 +82,34 @@ def test_zero_when_q_in_cone_and_warm_start_consistent():
     fb = objective(torch.tensor(P), torch.tensor(q), b.x)
     assert torch.allclose(fa, fb, atol=1e-6)
     assert b.iters <= a.iters
+
+
+
+def test_resting_cube_transition_gets_its_resting_impulse():
+    """A recorded resting transition of the real cube (148 Hz) with a sharp 0.1024 m cube as geometry: two of
+    the five table witnesses coincide (one corner answers two query directions), P is rank deficient and the
+    optimum lies inside the cones. The ρ adaptation once normalised the dual residual by ‖y‖ alone; with y = 0
+    it drove ρ back and forth between its bounds and returned λ = 0 (objective 0 instead of about −3.1e-3)."""
+    from service.contact.learn import ContactModel, LossWeights, Transitions, contact_loss
+
+    class Corners(torch.nn.Module):  # support points of a sharp cube
+        def forward(self, d):
+            return 0.0512 * torch.sign(d)
+
+    nu = [0.004916777747260703, -0.006543789229817655, -0.004942621239412738, 0.0003547433346071733,
+          6.415484030188645e-05, -9.15026699757304e-05]
+    quat = [0.5373357310807455, 0.46031997730578733, 0.5348519969884205, -0.46185405910808996]
+    p = [-0.15094944208053276, 0.10553677371908853, 0.05105045533014676]
+    nu1 = [-0.0005918089997890448, -5.3230914558018255e-05, -9.396704723002778e-05, 0.0008654677539103186,
+           0.00011969775800154427, -9.15026699757304e-05]
+    t = lambda a: torch.tensor([a], dtype=torch.float64)  # noqa: E731
+    tr = Transitions(np.zeros(1), np.zeros(1), t(nu), t(quat), t(p), t(nu1), None, None)
+    m = 0.37
+    model = ContactModel(8, 0.1, m, np.zeros(3), m * 0.1048**2 / 6 * np.eye(3), 0.26, 0.15)
+    model.geometry = Corners()
+    with torch.no_grad():
+        res = contact_loss(model, tr, 1 / 148, LossWeights(pen=50.0), 5, torch.Generator().manual_seed(1),
+                           SolverSettings(max_iters=100, eps_rel=1e-4))
+    # the observed vertical velocity change (resting: gravity cancelled) is explained by the impulses
+    assert abs(float(res.dv_explained[0, 5]) - float(res.dv_observed[0, 5])) < 0.1 * abs(float(res.dv_observed[0, 5]))
+    assert res.terms["pred"] < 0.05 * 0.5 * m * float(res.dv_observed[0, 5]) ** 2
