@@ -25,9 +25,21 @@ lower bound of mean(d), resampling held-out units (trajectories, or blocks for o
 p < α — robust to the few chaotic blocks where any tiny change flips a contact outcome; and (d) the
 fitted parameter is farther than its resolution from the no-effect value; and (e) the mean error over
 all frames of all held-out blocks does not grow (an effect that helps its own frames but hurts the
-rest is compensating for something else). The passing candidate with the largest mean improvement
-on its own held-out frames is accepted; the round repeats until none passes or ``max_effects`` are
-accepted.
+rest is compensating for something else). The passing candidate with the largest fall of the error
+over all held-out frames is accepted (a common basis: an effect judged on many frames, e.g. a near-zero
+friction letting a mistimed push slide, must not outrank the one that explains them); the round repeats
+until none passes or ``max_effects`` are accepted.
+
+Nuisance refit (learned models): a model learned from the same session carries its own errors
+(geometry a few millimetres to centimetres too large, inertia, CoM), which dominate the rollout error and
+would otherwise be soaked up by whichever effect mimics them. Before any effect is judged, the
+corrections ``ResidualConfig.nuisance`` (default for learned models: per-principal-axis geometry scale
+s ∈ [0.5, 1.3]³ about the CoM with the inertia following, inertia factor, CoM shift, table height) are
+fitted jointly (Nelder–Mead, all frames of the training blocks) and kept when the training error falls
+by ≥ ``min_rel_improvement``; the contact modes are re-classified with the corrected geometry; effects are
+judged against this corrected base. A candidate that passes is refitted jointly with the corrections
+(so neither absorbs the other) and judged again against the same base. Corrections are reported
+(``ResidualOutputs.corrections``), never accepted as effects and not put into the output model.
 """
 
 from __future__ import annotations
@@ -128,7 +140,7 @@ def _fit_window_ok(mode: np.ndarray) -> bool:
 
 
 def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: ResidualConfig) -> list[Segment]:
-    """Non-overlapping rollout blocks of ``segment_s`` (auto: 0.15 s, 0.6 s with a robot) along every trajectory.
+    """Non-overlapping rollout blocks of ``segment_s`` (auto: 0.15 s, 0.3 s with a robot) along every trajectory.
 
     The start state of a block comes from a quadratic fit over ``init_fit_frames`` frames centred on
     its first frame (clipped at the trajectory ends): centring keeps the velocity error of tracking
@@ -139,7 +151,7 @@ def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: Residual
     segs: list[Segment] = []
     kfit = max(2, cfg.init_fit_frames)
     has_robot = inputs.robot is not None and any(r is not None for r in inputs.robot)
-    seg_s = cfg.segment_s if cfg.segment_s is not None else (0.6 if has_robot else 0.15)
+    seg_s = cfg.segment_s if cfg.segment_s is not None else (0.3 if has_robot else 0.15)
     for k, tr in enumerate(inputs.trajectories):
         t = np.asarray(tr.t, float)
         X = np.asarray(tr.X_WO, float)

@@ -97,7 +97,8 @@ class ResidualConfig:
     seed: int = 0
     candidates: tuple[str, ...] | None = None  # effect names to try; None = every applicable one
     segment_s: float | None = None  # rollout horizon per block, s; None: 0.15 s for tosses (tumbling contact
-    # is chaotic), 0.6 s when a robot pushes (slow, driven motion)
+    # is chaotic), 0.3 s when a robot pushes (slow, driven motion; twice the held-out blocks of 0.6 s at the
+    # same error per block on lab sessions)
     min_segment_frames: int = 5
     heldout_fraction: float = 0.5
     max_train_segments: int = 24  # subsample training segments (speed); held-out keeps all
