@@ -31,9 +31,12 @@ def test_geometry_recovered_with_known_inertia(transitions):
     model.inertia.s.requires_grad_(False)
     train(model, transitions, DT, ContactConfig.tosses(width=32, epochs=40, batch_size=100, lr=3e-3))
     V = export(model)[0].vertices
-    # the initial ball (radius 0.03) is wrong on every axis; both faces of every axis are recovered
-    assert np.allclose(V.max(0), HALF, rtol=0.10, atol=1e-3), V.max(0)
-    assert np.allclose(-V.min(0), HALF, rtol=0.10, atol=1e-3), V.min(0)
+    # the initial ball (radius 0.03) is wrong on every axis (−25 %, +50 % on z); both faces of every axis are
+    # recovered within 20 % (10 % passed only while the cone solver returned λ = 0 on resting transitions; with
+    # correct resting impulses one z face comes out 16 % large at this short training). Corners are not recovered
+    # (support along (1,1,1) about 0.037 m instead of 0.052 m; docs/contact.md).
+    assert np.allclose(V.max(0), HALF, rtol=0.20, atol=1e-3), V.max(0)
+    assert np.allclose(-V.min(0), HALF, rtol=0.20, atol=1e-3), V.min(0)
 
 
 def test_inertia_moves_to_truth_with_known_geometry(transitions):
