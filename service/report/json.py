@@ -113,6 +113,8 @@ def residuals_section(residuals, reason: str | None) -> dict:
         **({"by_mode": residuals.by_mode} if residuals.by_mode else {}),
         # accepted effects of the recording itself (gravity/time scale, table offset): reported, not simulated
         "recording_effects": dict(getattr(residuals, "recording_effects", {}) or {}),
+        # nuisance corrections of the learned model the effects were judged against: reported, not in the model
+        "corrections": dict(getattr(residuals, "corrections", {}) or {}),
     })
 
 

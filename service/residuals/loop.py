@@ -58,6 +58,7 @@ from service.residuals.effects import (
     NUISANCE_LEARNED,
     NUISANCE_ONLY,
     REGISTRY,
+    at_bound,
     Effect,
     apply_effects,
     fold_into_model,
@@ -535,6 +536,17 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
         history: list[dict] = []
         remaining = list(names)
         n_rounds = min(cfg.max_effects, len(names))
+        base_err = float(reduce_blocks(held_cur_frames).mean())
+        inadequate = base_err > cfg.max_base_error_rel * rot_scale
+        nuisance_report["model_adequate"] = not inadequate
+        if inadequate:
+            n_rounds = 0
+            for name in names:
+                final[name] = EffectCandidate(
+                    name, {}, float("nan"), float("nan"), False,
+                    f"not judged: the {'corrected ' if corrections else ''}model's held-out error {base_err * 1e3:.1f} mm "
+                    f"exceeds {cfg.max_base_error_rel:.0%} of the object radius ({rot_scale * 1e3:.0f} mm); it does not "
+                    "explain the motion well enough to name a missing effect", round=0)
         for rnd in range(n_rounds):
             round_res = []
             cur_model, cur_sim = apply_effects(model, chosen)
@@ -580,6 +592,9 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
                 if ok and all_after.mean() > all_before.mean():
                     ok, why = False, (f"rejected: makes the mean error over all held-out frames worse "
                                       f"({(all_after.mean() - all_before.mean()) * 1e3:+.3f} mm); ") + why.removeprefix("passes; ")
+                if ok and at_bound(eff, theta):
+                    ok, why = False, ("rejected: fitted value on its bound (compensating for something it does not "
+                                      "model); ") + why.removeprefix("passes; ")
                 if ok and is_negligible(eff, theta, model):
                     ok, why = False, "rejected: fitted value within its resolution of no effect; " + why.removeprefix("passes; ")
                 cand = EffectCandidate(

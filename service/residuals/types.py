@@ -122,6 +122,9 @@ class ResidualConfig:
     # (``step_residuals`` given), else none; () = off.
     nuisance: tuple[str, ...] | None = None
     nuisance_maxiter: int = 80  # Nelder-Mead evaluations of the joint nuisance fit
+    # No effect is judged when the (corrected) model's held-out error exceeds this fraction of the object
+    # radius: such a model does not explain the motion, and any effect would only compensate for it.
+    max_base_error_rel: float = 0.25
 
     @classmethod
     def fast(cls) -> "ResidualConfig":
