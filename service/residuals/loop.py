@@ -509,8 +509,8 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
         if nuis_names:
             report(0.02, "refitting the model's own uncertain parameters (nuisance)")
             tr_n = list(train)
-            if len(tr_n) > 2 * cfg.max_train_segments:
-                sub = np.random.default_rng(cfg.seed + 99).choice(len(tr_n), 2 * cfg.max_train_segments, replace=False)
+            if len(tr_n) > cfg.max_nuisance_segments:
+                sub = np.random.default_rng(cfg.seed + 99).choice(len(tr_n), cfg.max_nuisance_segments, replace=False)
                 tr_n = [tr_n[i] for i in sorted(sub)]
             fix, e0, e1 = _fit_nuisance(nuis_names, model, base_effects, ev, tr_n, cfg)
             nuis_fix = dict(fix)

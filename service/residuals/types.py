@@ -122,6 +122,7 @@ class ResidualConfig:
     # (``step_residuals`` given), else none; () = off.
     nuisance: tuple[str, ...] | None = None
     nuisance_maxiter: int = 80  # Nelder-Mead evaluations of the joint nuisance fit
+    max_nuisance_segments: int = 24  # training blocks of the nuisance fit (and of the joint refit)
     # No effect is judged when the (corrected) model's held-out error exceeds this fraction of the object
     # radius: such a model does not explain the motion, and any effect would only compensate for it.
     max_base_error_rel: float = 0.25
@@ -129,7 +130,7 @@ class ResidualConfig:
     @classmethod
     def fast(cls) -> "ResidualConfig":
         return cls(fit_maxiter=16, n_bootstrap=500, max_train_segments=6, max_heldout_segments=64, max_effects=2,
-                   nuisance_maxiter=100)
+                   nuisance_maxiter=100, max_nuisance_segments=12)
 
 
 def _num(x: float) -> float | None:
