@@ -8,7 +8,7 @@ error (all frames) of the learned model -> corrected model -> corrected model + 
 error of the true effect's candidate on its own held-out frames before -> after.
 
     python benchmarks/residuals_pipeline.py [--preset small] [--frames N] [--seed 21] [--object milk_carton]
-        [--interaction push] [--cases none clock_offset ...] [--work DIR]
+        [--interaction push] [--cases none clock_offset ...] [--work DIR] [--diagnose]
 
 ``--frames`` lengthens the recording (same resolution and frame rate as the preset): a 5 s session holds
 one or two strokes, too few held-out blocks in robot contact for any test.
@@ -51,6 +51,79 @@ def _mm(x) -> str:
     return "-" if x is None else f"{1e3 * x:.2f}"
 
 
+def diagnose(bundle_dir: Path, session_dir: Path, segment_s: float = 0.3) -> None:
+    """Where the held-out block error comes from: the learned model vs the true one (shape, mass, inertia,
+    CoM from the sidecar and ground_truth/, expressed in the tracker's frame O), on the tracked poses vs the
+    true ones. Evaluation only: nothing here reaches the pipeline's model."""
+    import dataclasses
+
+    import numpy as np
+
+    from service.bundle import assemble_model
+    from service.contact.types import ContactOutputs
+    from service.evaluation.ground_truth import load_ground_truth
+    from service.fusion.types import FusionOutputs
+    from service.io import load_value
+    from service.mesh import Mesh
+    from service.model import ObjectModel
+    from service.residuals.loop import Evaluator, make_segments
+    from service.residuals.modes import classify, object_radius
+    from service.residuals.simulate import make_simulator
+    from service.residuals.types import ObservedTrajectory, ResidualConfig, ResidualInputs, RobotPath
+    from service.session import load_session, sha256_of
+    from service.tracking.types import TrackingOutputs
+    from service.transforms import X_inv, make_X, rotation_angle
+
+    art = bundle_dir.parent.parent.parent
+    keys = json.loads((bundle_dir.parent / "manifest.json").read_text())["inputs"]
+    tr = load_value(TrackingOutputs, art / "tracking" / keys["tracking"] / "value")
+    co = load_value(ContactOutputs, art / "contact" / keys["contact"] / "value")
+    fu = load_value(FusionOutputs, art / "fusion" / keys["fusion"] / "value")
+    sess = load_session(session_dir, sha256_of(session_dir))
+    gt = load_ground_truth(session_dir)
+    side = json.loads((session_dir.parent / f"{session_dir.name}.effects.json").read_text())
+    L = assemble_model(sess, co, fu.mesh)
+    ok = np.asarray(tr.tracked, bool)
+    Xs = np.stack([X_inv(tr.X_WO[k]) @ gt.X_WG[k] for k in np.flatnonzero(ok)])
+    U, _, Vt = np.linalg.svd(Xs[:, :3, :3].sum(0))
+    X_OG = make_X(U @ Vt, Xs[:, :3, 3].mean(0))  # mean true-from-tracked frame offset
+    gt_O = gt.X_WG @ X_inv(X_OG)
+    dp = np.linalg.norm(tr.X_WO[ok, :3, 3] - gt_O[ok, :3, 3], axis=1)
+    dr = np.degrees(rotation_angle(np.swapaxes(tr.X_WO[ok, :3, :3], 1, 2) @ gt_O[ok, :3, :3]))
+    print(f"  diagnose: tracked {ok.sum()}/{len(ok)} frames, pose error median {np.median(dp) * 1e3:.1f} mm / "
+          f"{np.median(dr):.2f} deg (frame offset removed)")
+    VO = np.asarray(gt.mesh.vertices) @ X_OG[:3, :3].T + X_OG[:3, 3]
+    R = X_OG[:3, :3]
+    T = ObjectModel(Mesh(VO, np.asarray(gt.mesh.faces)), (), side["true"]["mass"], True,
+                    R @ np.asarray(side["true"]["com_mesh"]) + X_OG[:3, 3], R @ np.asarray(side["true"]["inertia_mesh"]) @ R.T,
+                    L.friction, {})
+
+    def ext(V):
+        V = np.asarray(V, float)
+        return np.round(np.ptp((V - V.mean(0)) @ np.linalg.svd(V - V.mean(0), full_matrices=False)[2].T, axis=0) * 100, 1)
+
+    print(f"  diagnose: extents learned {ext(L.visual.vertices)} cm vs true {ext(VO)} cm; inertia eigenvalues learned "
+          f"{np.round(np.linalg.eigvalsh(L.inertia_O) * 1e4, 2)} vs true {np.round(np.linalg.eigvalsh(T.inertia_O) * 1e4, 2)} "
+          f"(1e-4 kg m^2); CoM offset {np.linalg.norm(L.com_O - T.com_O) * 1e3:.0f} mm")
+    robot = RobotPath(np.asarray(sess.robot_t, float), np.asarray(sess.robot_p_WE, float), None, float(sess.ee_radius))
+    cfg = dataclasses.replace(ResidualConfig(), segment_s=segment_s)
+    sim = make_simulator()
+    try:
+        for mname, M in (("learned", L), ("true", T)):
+            for pname, X in (("tracked", tr.X_WO), ("true", gt_O)):
+                traj = ObservedTrajectory(t=tr.t, X_WO=X, tracked=ok)
+                inp = ResidualInputs(M, (traj,), float(sess.table_height), robot=(robot,))
+                segs = make_segments(inp, [classify(M, traj, float(sess.table_height), robot, cfg)], cfg)
+                ev = Evaluator(sim, float(sess.table_height), object_radius(M))
+                e = ev.errors(M, {}, segs)
+                ov, tab = ev.by_mode(M, {}, segs)
+                by = ", ".join(f"{k} {v['frames']} fr {v['pos_err_m'] * 1e3:.1f} mm" for k, v in tab.items() if v["frames"])
+                print(f"  diagnose: {mname} model on {pname} poses: {len(segs)} blocks of {segment_s} s, block error "
+                      f"{e.mean() * 1e3:.1f} mm (median {np.median(e) * 1e3:.1f}); position by mode: {by}")
+    finally:
+        sim.close()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="small")
@@ -61,6 +134,8 @@ def main() -> None:
     ap.add_argument("--pipeline-preset", default="default")
     ap.add_argument("--cases", nargs="*", default=list(CASES))
     ap.add_argument("--work", default="/tmp/vysics-residuals-pipeline")
+    ap.add_argument("--diagnose", action="store_true",
+                    help="also split the block error into learned-model and tracking parts (reads ground_truth/)")
     a = ap.parse_args()
     work = Path(a.work)
     data_dir = work / "data"
@@ -104,6 +179,8 @@ def main() -> None:
                        f"{'accepted' if c['accepted'] else c['reason'][:70]}")
         print(f"{case} | {CASES[case] or '-'} | {fitted or '-'} | {corr or '-'} | {_mm(eb)} -> {_mm(ec)} -> {_mm(ea)} | "
               f"{own} | {time.time() - t0:.0f} | {_cpu() - c0:.0f}", flush=True)
+        if a.diagnose:
+            diagnose(Path(res["bundle_dir"]), sdir)
 
 
 if __name__ == "__main__":
