@@ -11,9 +11,13 @@ Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth,
    re-localised from the last tracked pose and against all keyframes' features;
 5. keyframes: a well-tracked frame far (angle/translation) from every keyframe or showing new surface adds
    its points (those within grow_dist of the model, which rejects mask noise) to the model.
-Drift is bounded by (a) frame-to-model rather than frame-to-frame registration, (b) leave-one-out
-refinement of the keyframe poses (each keyframe re-registered to the model of all the others, a small
-bundle adjustment by alternation), and (c) a final pass registering every frame to the refined model.
+Drift is bounded by (a) frame-to-model rather than frame-to-frame registration, (b) a bundle adjustment of
+all keyframe poses (``service.tracking.posegraph``: robust point-to-plane and ORB feature terms between every
+pair of overlapping keyframes, keyframe 0 fixed), optionally followed by leave-one-out refinement (each
+keyframe re-registered to the model of all the others), (c) a final pass registering every frame to the
+refined model, and (d) frame 0 registered to that model as well, the body frame moved by the constant offset
+so that X_WO(0) keeps its definition (a mismatch between frame 0 and the merged model would otherwise be an
+offset common to every other frame).
 Frames never tracked keep tracked=False and get poses interpolated (slerp/lerp) between tracked neighbours.
 O: origin at the centroid of frame 0's object points in W, axes parallel to W (docs/conventions.md).
 """
@@ -381,8 +385,37 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             tracked[i] = _good(r, cfg)
             if i % 20 == 0:
                 _report(progress, 0.62 + 0.18 * i / N, f"final registration {i}/{N}")
+        if cfg.regauge_frame0:
+            from dataclasses import replace as _replace
+
+            o0 = observe(session, 0, _replace(cfg, max_points=cfg.regauge_points), rng)  # dense: one frame sets O
+            model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw)
     X = interpolate_untracked(X, tracked)
     return TrackResult(X, tracked, frac, rmse, model, keyframes, carver)
+
+
+def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], carver: "FreeSpace | None",
+             cfg: TrackingConfig, icp_kw: dict) -> ObjectModel:
+    """Register frame 0 to the final model like every other frame (pose X̂_0 of the model frame M) and move
+    the body frame so that X_WO(0) keeps its definition X_0 (identity rotation, centroid origin):
+    X_WO(i) ← X_WO(i) D with D = X̂_0⁻¹ X_0 = X_MO, model and keyframe points p_O = D⁻¹ p_M. Otherwise a
+    mismatch between frame 0's own points and the merged model of all keyframes would be an offset common to
+    all other frames. Updates X, keyframes and carver in place; returns the model in the new frame."""
+    if len(o0.P_W) < cfg.min_points:
+        return model
+    r = icp(o0.P_W, X[0], model.tree, model.Q, model.N, **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
+    if not _good(r, cfg):
+        return model
+    D = X_inv(r.X_WO) @ X[0]
+    Di = X_inv(D)
+    X[1:] = X[1:] @ D
+    for kf in keyframes:
+        kf.X_WO = kf.X_WO @ D  # keyframe 0 included: its points were placed with the old X_WO(0)
+        kf.P_O = kf.P_O @ Di[:3, :3].T + Di[:3, 3]
+        kf.kp_O = kf.kp_O @ Di[:3, :3].T + Di[:3, 3]
+        if carver is not None:
+            carver.update_pose(kf.index, kf.X_WO)
+    return _model_from(keyframes, cfg.model_voxel)
 
 
 def _bundle_adjust(keyframes: list[Keyframe], cfg: TrackingConfig, rng: np.random.Generator,
