@@ -49,9 +49,9 @@ CUBE_HALF = 0.0524
 CUBE_MASS = 0.37
 
 
-def _inputs(trajs, dt, mass=CUBE_MASS, friction=Friction(), ee=None):
+def _inputs(trajs, dt, mass=CUBE_MASS, friction=Friction(), ee=None, table_height=0.0):
     return ContactInputs(dt=dt, states=tuple(trajs), ee_p_W=None if ee is None else ee[0],
-                         ee_v_W=None if ee is None else ee[1], ee_radius=0.0195, table_height=0.0,
+                         ee_v_W=None if ee is None else ee[1], ee_radius=0.0195, table_height=table_height,
                          friction=friction, mass=mass, mass_declared=False, visible_points_O=None,
                          init_vertices_O=None)
 
@@ -82,7 +82,7 @@ def bench_cube(args) -> dict:
     mu = args.mu
     true_body = Body(box_vertices([CUBE_HALF] * 3), CUBE_MASS, np.zeros(3), I_true * np.eye(3), mu)
     t0 = time.perf_counter()
-    true_roll = rollout_trajectories(true_body, [trajs[k] for k in held], dt)
+    true_roll = rollout_trajectories(true_body, [trajs[k] for k in held], dt, table_height=args.table_height)
     t_roll = time.perf_counter() - t0
     print(f"true cube rollout on {len(held)} held-out tosses: pos {100 * true_roll['pos_err_m']:.2f} cm, "
           f"rot {true_roll['rot_err_deg']:.1f} deg (mu={mu}, {t_roll:.0f} s)")
@@ -92,21 +92,33 @@ def bench_cube(args) -> dict:
         tr = [trajs[k] for k in sel]
         S = sum(len(X) - 1 for X in tr)
         cfg = ContactConfig(width=args.width, epochs=_epochs_for(S, args.batch, args.steps), batch_size=args.batch,
-                            seed=0, learn_friction=args.learn_friction, w_pen=args.w_pen)
+                            seed=0, learn_friction=args.learn_friction, w_pen=args.w_pen, geometry=args.geometry)
         t0 = time.perf_counter()
-        out = run(_inputs(tr, dt, friction=Friction(mu, 0.15)), cfg)
+        out = run(_inputs(tr, dt, friction=Friction(mu, 0.15), table_height=args.table_height), cfg)
         wall = time.perf_counter() - t0
         V = np.asarray(out.physible_mesh.vertices)
         half = 0.5 * np.ptp(V, axis=0)
         ev = np.linalg.eigvalsh(out.inertia_O)
         body = Body(V, out.mass, out.com_O, out.inertia_O, out.friction.object_table)
-        roll = rollout_trajectories(body, [trajs[k] for k in held], dt, n_contacts=8)
+        roll = rollout_trajectories(body, [trajs[k] for k in held], dt, n_contacts=8, table_height=args.table_height)
+        # decomposition: which learned part costs the rollout accuracy (same held-out tosses, same simulator)
+        tg_li = rollout_trajectories(Body(true_body.vertices_O, out.mass, out.com_O, out.inertia_O, mu),
+                                     [trajs[k] for k in held], dt, n_contacts=8, table_height=args.table_height)
+        lg_ti = rollout_trajectories(Body(V, CUBE_MASS, np.zeros(3), I_true * np.eye(3), mu),
+                                     [trajs[k] for k in held], dt, n_contacts=8, table_height=args.table_height)
+        corner = float((V @ (np.ones(3) / np.sqrt(3))).max())
+        from scipy.spatial import ConvexHull
+
+        vol_ratio = float(ConvexHull(V).volume / (2 * CUBE_HALF) ** 3)
         row = {
             "n_train": n, "transitions": S, "epochs": cfg.epochs, "wall_s": wall,
             "half_extents_m": half.tolist(), "half_err_pct": (100 * (half / CUBE_HALF - 1)).tolist(),
             "inertia_ratio": (ev / I_true).tolist(), "com_m": out.com_O.tolist(),
             "mu_table": out.friction.object_table,
             "rollout_pos_cm": 100 * roll["pos_err_m"], "rollout_rot_deg": roll["rot_err_deg"],
+            "rollout_true_geometry_learned_inertia": (100 * tg_li["pos_err_m"], tg_li["rot_err_deg"]),
+            "rollout_learned_geometry_true_inertia": (100 * lg_ti["pos_err_m"], lg_ti["rot_err_deg"]),
+            "corner_support_m": corner, "volume_ratio": vol_ratio,
             "s_per_epoch": out.metrics["time_s_per_epoch"], "solver_s": out.metrics["time_solver_s"],
             "fwd_bwd_s": out.metrics["time_forward_backward_s"],
             "solver_transitions_per_s": out.metrics["time_transitions_solved_per_s"],
@@ -114,7 +126,10 @@ def bench_cube(args) -> dict:
         rows.append(row)
         print(f"n={n:3d} S={S:5d} ep={cfg.epochs:4d} half={np.round(1000 * half, 1)} mm "
               f"(err {np.round(row['half_err_pct'], 1)} %) I/I_true={np.round(row['inertia_ratio'], 2)} "
-              f"rollout pos {row['rollout_pos_cm']:.2f} cm rot {row['rollout_rot_deg']:.1f} deg | "
+              f"rollout pos {row['rollout_pos_cm']:.2f} cm rot {row['rollout_rot_deg']:.1f} deg; "
+              f"true geometry + learned inertia {tg_li['rot_err_deg']:.1f} deg, learned geometry + true inertia "
+              f"{lg_ti['rot_err_deg']:.1f} deg; support along (1,1,1) {1000 * corner:.1f} mm (true "
+              f"{1000 * CUBE_HALF * np.sqrt(3):.1f}), hull volume / cube {vol_ratio:.2f} | "
               f"{wall:.0f} s, {row['s_per_epoch']:.2f} s/epoch (solver {row['solver_s']:.0f} s, "
               f"fwd/bwd {row['fwd_bwd_s']:.0f} s, {row['solver_transitions_per_s']:.0f} transitions/s)")
         sys.stdout.flush()
@@ -130,7 +145,7 @@ def bench_tagslam(args) -> dict:
         trajs, ids, dt, meta = load_trajectories(DATA / name / "data.npz")
         S = sum(len(X) - 1 for X in trajs)
         cfg = ContactConfig(width=args.width, epochs=_epochs_for(S, args.batch, args.steps), batch_size=args.batch,
-                            w_pen=args.w_pen)
+                            w_pen=args.w_pen, geometry=args.geometry)
         mass = float(meta.get("values_in_source_urdf_bundlesdf_<obj>_mesh.urdf", {}).get("mass_kg", CUBE_MASS))
         t0 = time.perf_counter()
         out = run(_inputs(trajs, dt, mass=mass), cfg)
@@ -203,7 +218,7 @@ def bench_synth(args) -> dict:
     res = {}
     for kind, inter in [("baking_box", "push"), ("baking_box", "topple"), ("prism", "pivot")]:
         obj, S, ee, ev, dt = _push_session(kind, inter, 1)
-        cfg = ContactConfig(epochs=args.epochs, w_pen=args.w_pen)
+        cfg = ContactConfig(epochs=args.epochs, w_pen=args.w_pen, geometry=args.geometry)
         t0 = time.perf_counter()
         out = run(_inputs([S], dt, mass=obj.mass, ee=((ee,), (ev,))), cfg)
         wall = time.perf_counter() - t0
@@ -299,7 +314,11 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=64)
     ap.add_argument("--mu", type=float, default=0.26)
     ap.add_argument("--w-pen", type=float, default=50.0, help="penetration weight (PLL: 0.5; see docs/contact.md)")
+    ap.add_argument("--geometry", default="dsf", choices=["dsf", "polytope"],
+                    help="cube/tagslam/synth: deep support function or learnable polytope vertices")
     ap.add_argument("--learn-friction", action="store_true")
+    ap.add_argument("--table-height", type=float, default=0.0,
+                    help="cube: table plane height in the data's world frame (m) for learning and rollouts")
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="write the figures as JSON")
     args = ap.parse_args()

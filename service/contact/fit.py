@@ -266,7 +266,8 @@ def _run(inputs: ContactInputs, cfg: ContactConfig, progress: Progress) -> Conta
         init = V
     model = build_model(mass, inputs.friction.object_table, inputs.friction.object_robot, init, width=cfg.width,
                         init_radius=cfg.init_radius, pretrain_steps=cfg.pretrain_steps, learn_com=cfg.learn_com,
-                        learn_friction=cfg.learn_friction, learn_mass=cfg.learn_mass, seed=cfg.seed)
+                        learn_friction=cfg.learn_friction, learn_mass=cfg.learn_mass, seed=cfg.seed,
+                        geometry=cfg.geometry, n_vertices=cfg.n_vertices)
     prog = (lambda f, m: progress(0.95 * f, m)) if progress is not None else None
     t0 = time.perf_counter()
     t_pretrain = t0 - t_start

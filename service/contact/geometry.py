@@ -14,6 +14,8 @@ Optionally the network is pre-fitted to the support points of a guess (PLL ``tra
 Mesh export (§3.4): directions on the surface of a k×k×k cube grid (k = 8 → 296), normalised,
 support points, convex hull (scipy Qhull), faces oriented outward.
 
+Polytope option (ContactNets / PLL ``Polygon``, §3.5): learnable vertices V, s(d) = argmax_v d·v.
+
 Closest point on a triangle mesh: exact point-triangle closest points (Ericson, Real-Time Collision
 Detection §5.1.5) vectorised over points × triangles; the sign of the distance to a convex hull is
 positive when the point lies outside some face plane.
@@ -89,6 +91,23 @@ class HomogeneousICNN(nn.Module):
         return g1 @ self.A1.T + g2 @ self.A2.T
 
 
+class PolytopeSupport(nn.Module):
+    """Convex polytope given by learnable vertices V (N,3) (ContactNets / PLL ``Polygon``, method-notes §3.5):
+    s(d) = V[argmax_v d·v], f(d) = max_v d·v. A contact moves only the vertex that is the support point of its
+    query direction, so corners and faces are learned independently (the deep support function couples them
+    through shared weights). Vertices that end inside the hull are ignored by the mesh export."""
+
+    def __init__(self, vertices: np.ndarray):
+        super().__init__()
+        self.V = nn.Parameter(torch.as_tensor(np.asarray(vertices, float), dtype=torch.float64))
+
+    def forward(self, d: torch.Tensor) -> torch.Tensor:
+        return self.V[torch.argmax(d @ self.V.T, -1)]
+
+    def support_value(self, d: torch.Tensor) -> torch.Tensor:
+        return (d @ self.V.T).max(-1).values
+
+
 def hull_mesh(points: np.ndarray) -> Mesh:
     """Convex hull of points (N,3) as a Mesh with outward (counter-clockwise) faces."""
     from scipy.spatial import ConvexHull
@@ -109,7 +128,7 @@ def hull_mesh(points: np.ndarray) -> Mesh:
 
 
 @torch.no_grad()
-def export_mesh(net: HomogeneousICNN, directions: np.ndarray) -> tuple[Mesh, np.ndarray]:
+def export_mesh(net: nn.Module, directions: np.ndarray) -> tuple[Mesh, np.ndarray]:
     """Convex hull of the support points of ``directions`` (D,3). Returns (mesh, support points (D,3))."""
     d = torch.as_tensor(directions, dtype=torch.float64)
     s = net(d).numpy()

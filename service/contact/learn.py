@@ -39,6 +39,7 @@ from torch import nn
 from service.contact import dynamics as dyn
 from service.contact.geometry import (
     HomogeneousICNN,
+    PolytopeSupport,
     cube_surface_directions,
     export_mesh,
     fibonacci_directions,
@@ -117,9 +118,9 @@ class ContactModel(nn.Module):
 
     def __init__(self, width: int, length_scale: float, mass: float, com, inertia, mu_table: float, mu_robot: float,
                  *, learn_com: bool = True, learn_friction: bool = False, learn_mass: bool = False,
-                 generator: torch.Generator | None = None):
+                 generator: torch.Generator | None = None, geometry: nn.Module | None = None):
         super().__init__()
-        self.geometry = HomogeneousICNN(width, length_scale, generator)
+        self.geometry = geometry if geometry is not None else HomogeneousICNN(width, length_scale, generator)
         self.inertia = RigidBodyInertia(mass, com, inertia, learn_com=learn_com, learn_mass=learn_mass)
         lmu = torch.log(torch.tensor([mu_table, mu_robot], dtype=torch.float64))
         self.log_mu = nn.Parameter(lmu, requires_grad=learn_friction)
@@ -316,9 +317,23 @@ def init_geometry(model: ContactModel, init_vertices: np.ndarray | None, init_ra
     pretrain_to_points(model.geometry, verts, steps=steps)
 
 
+def polytope_init(init_vertices: np.ndarray | None, init_radius: float, n_vertices: int) -> np.ndarray:
+    """(N,3) initial vertices: the support points of the guess (hull of init vertices, else the ball of radius
+    ``init_radius``) in ``n_vertices`` nearly uniform directions."""
+    d = fibonacci_directions(n_vertices)
+    if init_vertices is None:
+        return init_radius * d
+    V = np.asarray(init_vertices, float)
+    return V[np.argmax(d @ V.T, -1)]
+
+
 def build_model(mass: float, mu_table: float, mu_robot: float, init_vertices: np.ndarray | None, *, width: int,
                 init_radius: float, pretrain_steps: int, learn_com: bool, learn_friction: bool, learn_mass: bool,
-                seed: int) -> ContactModel:
+                seed: int, geometry: str = "dsf", n_vertices: int = 300) -> ContactModel:
+    """``geometry``: "dsf" (deep support function, pre-fitted to the guess) or "polytope" (vertices initialised
+    on the guess)."""
+    if geometry not in ("dsf", "polytope"):
+        raise ValueError(f"geometry must be 'dsf' or 'polytope', got {geometry!r}")
     gen = torch.Generator().manual_seed(seed)
     if init_vertices is not None and len(init_vertices) >= 4:
         V = np.asarray(init_vertices, float)
@@ -328,10 +343,12 @@ def build_model(mass: float, mu_table: float, mu_robot: float, init_vertices: np
         V = None
         L = init_radius * math.sqrt(3.0)
         com, I = np.zeros(3), 0.4 * mass * init_radius**2 * np.eye(3)
+    poly = PolytopeSupport(polytope_init(V, init_radius, n_vertices)) if geometry == "polytope" else None
     model = ContactModel(width, L, mass, com, I, mu_table, mu_robot, learn_com=learn_com,
-                         learn_friction=learn_friction, learn_mass=learn_mass, generator=gen)
+                         learn_friction=learn_friction, learn_mass=learn_mass, generator=gen, geometry=poly)
     torch.manual_seed(seed)
-    init_geometry(model, V, init_radius, pretrain_steps)
+    if poly is None:
+        init_geometry(model, V, init_radius, pretrain_steps)
     return model
 
 

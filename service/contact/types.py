@@ -77,6 +77,8 @@ class ContactConfig:
     w_pen: float = 0.5
     w_vision: float = 0.04
     # geometry
+    geometry: str = "dsf"  # "dsf" deep support function (Vysics) | "polytope" learnable vertices (ContactNets)
+    n_vertices: int = 300  # polytope: number of vertices (initialised on the guess / ball)
     width: int = 64  # hidden width W of the deep support function (PLL: 256)
     n_plane: int = 5  # table witness candidates per transition
     export_grid: int = 8  # k of the k×k×k cube-surface direction grid for the mesh (8 -> 296 directions)

@@ -101,3 +101,26 @@ def test_closest_point_with_candidate_faces_matches_exact_near_the_surface():
     n = outward_directions_to(mesh, p)[2]
     n_k = outward_directions_to(mesh, p, candidates=12)[2]
     assert np.allclose(n_k, n, atol=1e-7)
+
+
+def test_polytope_support_and_local_gradient():
+    from service.contact.geometry import PolytopeSupport
+    from service.contact.learn import polytope_init
+
+    V = polytope_init(box_vertices([0.04, 0.03, 0.02]), 0.1, 50)
+    poly = PolytopeSupport(V)
+    d = torch.as_tensor(cube_surface_directions(6))
+    s = poly(d)
+    # support points are box corners, f(d) = d·s(d) = Σ|d_i| h_i
+    assert torch.allclose(s.abs(), torch.tensor([0.04, 0.03, 0.02], dtype=torch.float64).expand_as(s))
+    assert torch.allclose(poly.support_value(d), (d.abs() * torch.tensor([0.04, 0.03, 0.02])).sum(-1))
+    # a loss on one direction moves only the vertex that is its support point
+    q = torch.tensor([[0.3, 0.5, -0.8]], dtype=torch.float64)
+    poly.support_value(q).sum().backward()
+    moved = (poly.V.grad.abs().sum(-1) > 0).nonzero().squeeze(-1)
+    assert len(moved) == 1 and torch.allclose(poly.V.grad[moved[0]], q[0])
+    mesh, _ = export_mesh(poly, cube_surface_directions(8))
+    assert np.allclose(np.ptp(mesh.vertices, axis=0), [0.08, 0.06, 0.04])
+    # ball initialisation without a guess
+    B = polytope_init(None, 0.05, 100)
+    assert B.shape == (100, 3) and np.allclose(np.linalg.norm(B, axis=-1), 0.05)
