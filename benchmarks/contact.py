@@ -21,6 +21,8 @@ pipeline-input: synthetic session -> ingest -> tracking -> contact (the inputs t
 synth:   synthetic push sessions (service.synth physics only): support-function error on the contacted faces.
 
 Loss weights: PLL's, except the penetration weight ``--w-pen`` (default 50 = ``ContactConfig.tosses()``).
+Geometry ``--geometry``: cube/tagslam default to the learnable polytope (as ``ContactConfig.tosses()``), synth to
+the deep support function (as ``ContactConfig()``).
 """
 
 from __future__ import annotations
@@ -92,7 +94,8 @@ def bench_cube(args) -> dict:
         tr = [trajs[k] for k in sel]
         S = sum(len(X) - 1 for X in tr)
         cfg = ContactConfig(width=args.width, epochs=_epochs_for(S, args.batch, args.steps), batch_size=args.batch,
-                            seed=0, learn_friction=args.learn_friction, w_pen=args.w_pen, geometry=args.geometry)
+                            seed=0, learn_friction=args.learn_friction, w_pen=args.w_pen,
+                            geometry=args.geometry or "polytope")
         t0 = time.perf_counter()
         out = run(_inputs(tr, dt, friction=Friction(mu, 0.15), table_height=args.table_height), cfg)
         wall = time.perf_counter() - t0
@@ -145,7 +148,7 @@ def bench_tagslam(args) -> dict:
         trajs, ids, dt, meta = load_trajectories(DATA / name / "data.npz")
         S = sum(len(X) - 1 for X in trajs)
         cfg = ContactConfig(width=args.width, epochs=_epochs_for(S, args.batch, args.steps), batch_size=args.batch,
-                            w_pen=args.w_pen, geometry=args.geometry)
+                            w_pen=args.w_pen, geometry=args.geometry or "polytope")
         mass = float(meta.get("values_in_source_urdf_bundlesdf_<obj>_mesh.urdf", {}).get("mass_kg", CUBE_MASS))
         t0 = time.perf_counter()
         out = run(_inputs(trajs, dt, mass=mass), cfg)
@@ -218,7 +221,7 @@ def bench_synth(args) -> dict:
     res = {}
     for kind, inter in [("baking_box", "push"), ("baking_box", "topple"), ("prism", "pivot")]:
         obj, S, ee, ev, dt = _push_session(kind, inter, 1)
-        cfg = ContactConfig(epochs=args.epochs, w_pen=args.w_pen, geometry=args.geometry)
+        cfg = ContactConfig(epochs=args.epochs, w_pen=args.w_pen, geometry=args.geometry or "dsf")
         t0 = time.perf_counter()
         out = run(_inputs([S], dt, mass=obj.mass, ee=((ee,), (ev,))), cfg)
         wall = time.perf_counter() - t0
@@ -314,8 +317,9 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=64)
     ap.add_argument("--mu", type=float, default=0.26)
     ap.add_argument("--w-pen", type=float, default=50.0, help="penetration weight (PLL: 0.5; see docs/contact.md)")
-    ap.add_argument("--geometry", default="dsf", choices=["dsf", "polytope"],
-                    help="cube/tagslam/synth: deep support function or learnable polytope vertices")
+    ap.add_argument("--geometry", default=None, choices=["dsf", "polytope"],
+                    help="deep support function or learnable polytope vertices (default: polytope for the tosses "
+                         "= ContactConfig.tosses(), dsf for synth)")
     ap.add_argument("--learn-friction", action="store_true")
     ap.add_argument("--table-height", type=float, default=0.0,
                     help="cube: table plane height in the data's world frame (m) for learning and rollouts")
