@@ -339,7 +339,7 @@ def is_negligible(effect: Effect, theta, model: ObjectModel) -> bool:
     return all(abs(float(a) - float(b)) <= r for a, b, r in zip(theta, null, res))
 
 
-def at_bound(effect: Effect, theta, rel: float = 0.01) -> bool:
+def at_bound(effect: Effect, theta, rel: float = 0.02) -> bool:
     """True when a parameter sits on (within ``rel`` of the range of) one of its bounds."""
     return any(min(v - lo, hi - v) <= rel * (hi - lo) for v, lo, hi in zip(theta, effect.lower, effect.upper))
 

@@ -537,16 +537,21 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
         remaining = list(names)
         n_rounds = min(cfg.max_effects, len(names))
         base_err = float(reduce_blocks(held_cur_frames).mean())
-        inadequate = base_err > cfg.max_base_error_rel * rot_scale
-        nuisance_report["model_adequate"] = not inadequate
-        if inadequate:
+        pinned = [n for n, th in nuis_fix.items() if at_bound(REGISTRY[n], th)]
+        why_not = None
+        if base_err > cfg.max_base_error_rel * rot_scale:
+            why_not = (f"the {'corrected ' if corrections else ''}model's held-out error {base_err * 1e3:.1f} mm exceeds "
+                       f"{cfg.max_base_error_rel:.0%} of the object radius ({rot_scale * 1e3:.0f} mm)")
+        elif pinned:
+            why_not = f"the model's corrections {pinned} went to their bounds"
+        nuisance_report["model_adequate"] = why_not is None
+        if why_not is not None:
             n_rounds = 0
             for name in names:
                 final[name] = EffectCandidate(
                     name, {}, float("nan"), float("nan"), False,
-                    f"not judged: the {'corrected ' if corrections else ''}model's held-out error {base_err * 1e3:.1f} mm "
-                    f"exceeds {cfg.max_base_error_rel:.0%} of the object radius ({rot_scale * 1e3:.0f} mm); it does not "
-                    "explain the motion well enough to name a missing effect", round=0)
+                    f"not judged: {why_not}; the model does not explain the motion well enough to name a missing effect",
+                    round=0)
         for rnd in range(n_rounds):
             round_res = []
             cur_model, cur_sim = apply_effects(model, chosen)

@@ -124,8 +124,9 @@ class ResidualConfig:
     nuisance_maxiter: int = 80  # Nelder-Mead evaluations of the joint nuisance fit
     max_nuisance_segments: int = 24  # training blocks of the nuisance fit (and of the joint refit)
     # No effect is judged when the (corrected) model's held-out error exceeds this fraction of the object
-    # radius: such a model does not explain the motion, and any effect would only compensate for it.
-    max_base_error_rel: float = 0.25
+    # radius, or when a nuisance correction had to go to its bound: such a model does not explain the
+    # motion, and any effect would only compensate for it.
+    max_base_error_rel: float = 0.1
 
     @classmethod
     def fast(cls) -> "ResidualConfig":
