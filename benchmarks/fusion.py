@@ -77,8 +77,13 @@ def stored_session(data: Path, sha: str) -> None:
     inputs = FusionInputs(session, tr.X_WO, tr.tracked, tr.sdf, co.physible_points_O, co.physible_normals_O,
                           co.physible_mesh)
     base = FusionConfig()
+    paper = dataclasses.replace(base, table_points="points", drop_penetrating=False)
     for name, cfg in [
         ("fused, default", base),
+        ("fused, every physible point as a point, none dropped (paper)", paper),
+        ("fused, table contacts as points", dataclasses.replace(base, table_points="points")),
+        ("fused, penetrating points kept", dataclasses.replace(base, drop_penetrating=False)),
+        ("fused, no free-space drop", dataclasses.replace(base, free_space_drop=False)),
         ("fused, final-code extents", dataclasses.replace(base, extents=SampleExtents.final_code())),
         ("fused, visible start", dataclasses.replace(base, init="visible")),
     ]:

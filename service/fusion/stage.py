@@ -8,6 +8,11 @@ samples induced by the physible set P = {(p_i, n̂_i)} (``service.fusion.samples
 each n̂_i, cylinder lower-bound samples around points of the physible mesh on supporting planes of P,
 convexity pairs between visible near-surface points and ray samples. The grid box covers the visible
 surface ∪ P (padded), so contact points off the visible geometry can close the hidden side.
+Before sampling, P is filtered (departures from the paper, docs/fusion.md): points that some tracked pose
+puts below the table or inside the end effector are dropped (non-penetration), so are points the camera saw
+through (``service.fusion.carve``); table contacts (direction = the table's downward normal at a tracked frame,
+on the table there) keep their supporting plane but are used as points only inside the footprint of the
+other evidence, since a face resting on the table fixes the plane, not where on it the witness lies.
 Output: S* and its zero level set (marching cubes, closed by construction).
 References: Vysics paper §4.B and appendix; method-notes §6.2–6.3, §7.6.
 """
@@ -21,6 +26,7 @@ from typing import Callable
 import numpy as np
 
 from service.errors import StageFailed
+from service.fusion.carve import free_space_votes
 from service.fusion.losses import PhysibleLosses
 from service.fusion.samples import hyperplane_anchors, hyperplane_samples, inside_box, ray_samples
 from service.fusion.types import FusionConfig, FusionInputs, FusionOutputs
@@ -49,19 +55,23 @@ def select_frames(tracked: np.ndarray, max_frames: int) -> np.ndarray:
 
 
 def session_rays(
-    session, X_WO: np.ndarray, tracked: np.ndarray, cfg: FusionConfig, visible_sdf: SdfGrid | None = None
+    session, X_WO: np.ndarray, tracked: np.ndarray, cfg: FusionConfig, visible_sdf: SdfGrid | None = None,
+    frames_out: list | None = None,
 ) -> RaySet:
     """Depth rays in O of up to ``cfg.max_frames`` tracked frames (subsampled pixels).
 
     As in the first pass, an object pixel is used only when its back-projected point lies above the table
     (by ``cfg.table_clearance``) and, given the visible SDF, within ``cfg.denoise`` of its zero level set
-    (BundleSDF drops rays > 2 cm from its point cloud)."""
+    (BundleSDF drops rays > 2 cm from its point cloud). ``frames_out``, when given, receives
+    ``(depth (H,W), X_OC (4,4))`` of every frame read (for the free-space test of physible points)."""
     rng = np.random.default_rng(cfg.seed)
     K = np.asarray(session.K, float)
     parts = []
     for i in select_frames(tracked, cfg.max_frames):
         X_OC = X_inv(X_WO[i]) @ session.X_WC
         depth, mask = session.depth(int(i)), session.mask(int(i))
+        if frames_out is not None:
+            frames_out.append((depth, X_OC))
         v, u = np.nonzero(mask & (depth > 0))
         d = depth[v, u].astype(float)
         P_C = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], 1)
@@ -106,6 +116,85 @@ def fusion_bounds(
     return np.stack([lo - pad, hi + pad])
 
 
+def table_contacts(
+    points_O: np.ndarray, normals_O: np.ndarray, X_WO: np.ndarray, tracked: np.ndarray, table_height: float,
+    max_deg: float = 5.0, tol: float = 0.005,
+) -> np.ndarray:
+    """(P,) bool: physible points that are table contacts, i.e. at some tracked frame k their outward direction
+    is within ``max_deg`` of the table's downward normal in O, −R_WO(k)ᵀ e_z, and the point lies within ``tol``
+    of the table plane. The rest are end-effector contacts (the sphere never pushes from below)."""
+    P = np.asarray(points_O, float).reshape(-1, 3)
+    N = np.asarray(normals_O, float).reshape(-1, 3)
+    out = np.zeros(len(P), bool)
+    if len(P) == 0:
+        return out
+    N = N / np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-12)
+    X = np.asarray(X_WO, float)[np.asarray(tracked, bool)]
+    if len(X) == 0:
+        return out
+    down = -X[:, 2, :3]  # (K,3) table's downward normal in O at each tracked frame
+    cos_ok = (N @ down.T) >= np.cos(np.radians(max_deg))  # (P,K)
+    height = P @ X[:, 2, :3].T + X[:, 2, 3] - table_height  # (P,K) z_W − table
+    return np.any(cos_ok & (np.abs(height) <= tol), axis=1)
+
+
+def penetrating(
+    points_O: np.ndarray, X_WO: np.ndarray, tracked: np.ndarray, table_height: float,
+    p_WE: np.ndarray | None = None, ee_radius: float = 0.0, tol: float = 0.005,
+) -> np.ndarray:
+    """(P,) bool: points that would lie more than ``tol`` below the table, or inside the end-effector sphere
+    (centre ``p_WE[k]``, radius ``ee_radius``), at some tracked frame k. No point of the object can: the
+    non-penetration the contact model itself imposes, checked on every tracked pose."""
+    P = np.asarray(points_O, float).reshape(-1, 3)
+    out = np.zeros(len(P), bool)
+    idx = np.nonzero(np.asarray(tracked, bool))[0]
+    if len(P) == 0 or len(idx) == 0:
+        return out
+    X = np.asarray(X_WO, float)[idx]
+    for a in range(0, len(idx), 64):
+        Xa = X[a:a + 64]
+        P_W = np.einsum("kij,pj->pki", Xa[:, :3, :3], P) + Xa[:, :3, 3]  # (P,k,3)
+        out |= np.any(P_W[..., 2] < table_height - tol, axis=1)
+        if p_WE is not None and ee_radius > 0:
+            c = np.asarray(p_WE, float)[idx[a:a + 64]]
+            ok = np.all(np.isfinite(c), axis=1)
+            d = np.linalg.norm(P_W[:, ok] - c[ok], axis=2)
+            out |= np.any(d < ee_radius - tol, axis=1)
+    return out
+
+
+def within_footprint(points_O: np.ndarray, normals_O: np.ndarray, evidence_O: np.ndarray, tol: float = 0.002,
+                     max_evidence: int = 3000, seed: int = 0) -> np.ndarray:
+    """(P,) bool: table-contact points (P,3) whose position across their plane (normal (P,3)) lies inside the
+    shadow of the other evidence (K,3) along that normal, i.e. inside hull(E ∪ (E + L n̂)) within ``tol``.
+    A face resting on the table fixes the plane; where on it the witness point lies is left to the rest.
+    Normals within ~3° share one hull."""
+    from scipy.spatial import ConvexHull
+
+    P = np.asarray(points_O, float).reshape(-1, 3)
+    N = np.asarray(normals_O, float).reshape(-1, 3)
+    E = np.asarray(evidence_O, float).reshape(-1, 3)
+    out = np.zeros(len(P), bool)
+    if len(P) == 0 or len(E) < 4:
+        return out
+    if len(E) > max_evidence:
+        E = E[np.random.default_rng(seed).choice(len(E), max_evidence, replace=False)]
+    N = N / np.linalg.norm(N, axis=1, keepdims=True)
+    L = 2.0 * float(np.ptp(np.concatenate([E, P]), axis=0).max() + 1.0)
+    keys = np.round(N / 0.05).astype(int)
+    _, group = np.unique(keys, axis=0, return_inverse=True)
+    for g in np.unique(group):
+        m = group.reshape(-1) == g
+        n = N[m].mean(0)
+        n /= np.linalg.norm(n)
+        try:
+            h = ConvexHull(np.concatenate([E, E + L * n]))
+        except Exception:  # degenerate evidence (flat): no footprint
+            continue
+        out[m] = np.all(P[m] @ h.equations[:, :3].T + h.equations[:, 3] <= tol, axis=1)
+    return out
+
+
 def _near_visible_box(points: np.ndarray, visible_points: np.ndarray, dist: float) -> np.ndarray:
     lo, hi = visible_points.min(0), visible_points.max(0)
     d = np.linalg.norm(np.maximum(lo - points, 0) + np.maximum(points - hi, 0), axis=1)
@@ -122,9 +211,12 @@ def fuse(
     *,
     progress: Progress = None,
     halfspace_O: np.ndarray | None = None,
+    table_mask: np.ndarray | None = None,
 ) -> FusionOutputs:
     """The fusion pass on prepared rays (no session I/O); see the module docstring. ``halfspace_O``: optional
-    plane (n, b) in O; where ``n·p + b > 0`` is outside the object (space below the table at frame 0)."""
+    plane (n, b) in O; where ``n·p + b > 0`` is outside the object (space below the table at frame 0).
+    ``table_mask`` (P,) bool: physible points that are table contacts; with ``cfg.table_points == "planes"``
+    only their supporting planes are used (hyperplane anchors), not the points themselves."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(cfg.seed)
     vis = rays.surface_points_O
@@ -137,12 +229,22 @@ def fuse(
     ok = np.all(np.isfinite(P), 1) & np.all(np.isfinite(N), 1) & (np.linalg.norm(N, axis=1) > 1e-9)
     ok &= _near_visible_box(P, vis, cfg.max_physible_distance)
     n_dropped = int(len(P) - ok.sum())
-    P, N = P[ok], N[ok] / np.linalg.norm(N[ok], axis=1, keepdims=True)
+    table = np.zeros(len(P), bool) if table_mask is None else np.asarray(table_mask, bool).reshape(-1)
+    if len(table) != len(ok):
+        raise ValueError(f"table_mask has {len(table)} entries for {len(ok)} physible points")
+    P, N, table = P[ok], N[ok] / np.linalg.norm(N[ok], axis=1, keepdims=True), table[ok]
+    # points asserted to lie on the surface (support-point rays, convexity pairs, hull start)
+    on = np.ones(len(P), bool)
+    if cfg.table_points in ("planes", "footprint"):
+        on = ~table
+    if cfg.table_points == "footprint" and table.any():
+        on[table] = within_footprint(P[table], N[table], np.concatenate([vis, P[~table]]), seed=cfg.seed)
+    P_on, N_on = P[on], N[on]
 
     bounds = fusion_bounds(vis, visible_sdf, P, cfg.pad)
 
     # sample pools
-    x_sp, l_sp = ray_samples(P, N, cfg.extents, rng)
+    x_sp, l_sp = ray_samples(P_on, N_on, cfg.extents, rng)
     if physible_mesh is not None and len(P):
         A, M = hyperplane_anchors(physible_mesh, P, N, rng, n_surface=cfg.anchor_samples, tol=cfg.anchor_tol)
     else:
@@ -162,7 +264,8 @@ def fuse(
     init = visible_sdf
     if cfg.init == "hull":
         origin, voxel, shape = make_grid_geometry(bounds, cfg.sdf.resolution)
-        pts = np.concatenate([vis, P]) if len(P) else vis
+        P_hull = P if cfg.table_points == "hull" else P_on
+        pts = np.concatenate([vis, P_hull]) if len(P_hull) else vis
         try:
             v0 = hull_sdf(pts, grid_points(origin, voxel, shape).reshape(-1, 3)).reshape(shape).astype(np.float32)
             init = SdfGrid(origin_O=origin, voxel=voxel, values=v0)
@@ -188,6 +291,8 @@ def fuse(
         "rays": float(len(rays)),
         "physible_points": float(len(P)),
         "physible_dropped": float(n_dropped),
+        "physible_table": float(table.sum()),
+        "physible_table_as_points": float((table & on).sum()),
         "anchors": float(n_anchors),
         "sp_samples": float(len(x_sp)),
         "hc_samples": float(len(q_hc)),
@@ -214,8 +319,29 @@ def run(inputs: FusionInputs, cfg: FusionConfig, *, progress: Progress = None) -
     if progress is not None:
         progress(0.0, "fusion: reading depth rays")
     t0 = time.perf_counter()
-    rays = session_rays(inputs.session, X_WO, tracked, cfg, inputs.visible_sdf)
+    frames: list = []
+    rays = session_rays(inputs.session, X_WO, tracked, cfg, inputs.visible_sdf, frames_out=frames)
     t_rays = time.perf_counter() - t0
+    P = np.asarray(inputs.physible_points_O, float).reshape(-1, 3)
+    N = np.asarray(inputs.physible_normals_O, float).reshape(-1, 3)
+    if P.shape != N.shape:
+        raise ValueError(f"FusionInputs: physible points {P.shape} and normals {N.shape} differ in shape")
+    n_free = 0
+    if cfg.free_space_drop and len(P) and frames:  # free space seen by the camera overrides contact
+        votes, n_obs = free_space_votes(P, [d for d, _ in frames], [x for _, x in frames], inputs.session.K,
+                                        margin=cfg.free_margin, radius_px=cfg.free_radius_px)
+        free = (votes >= 1) & (votes >= cfg.free_min_frac * n_obs)
+        n_free = int(free.sum())
+        P, N = P[~free], N[~free]
+    del frames
+    n_pen = 0
+    if cfg.drop_penetrating and len(P):  # contact points the tracked motion would push through table or robot
+        pen = penetrating(P, X_WO, tracked, float(inputs.session.table_height), inputs.session.p_WE,
+                          float(inputs.session.ee_radius), cfg.penetration_tol)
+        n_pen = int(pen.sum())
+        P, N = P[~pen], N[~pen]
+    table = table_contacts(P, N, X_WO, tracked, float(inputs.session.table_height), cfg.table_normal_deg,
+                           cfg.table_tol)
     halfspace = None
     if cfg.below_table_outside:  # the object rests on the table at frame 0: nothing of it lies below
         from service.tracking.visible import below_table_halfspace
@@ -224,12 +350,15 @@ def run(inputs: FusionInputs, cfg: FusionConfig, *, progress: Progress = None) -
     out = fuse(
         rays,
         inputs.visible_sdf,
-        inputs.physible_points_O,
-        inputs.physible_normals_O,
+        P,
+        N,
         inputs.physible_mesh,
         cfg,
         progress=progress,
         halfspace_O=halfspace,
+        table_mask=table,
     )
     out.metrics["time_rays_s"] = t_rays
+    out.metrics["physible_free_dropped"] = float(n_free)
+    out.metrics["physible_penetrating_dropped"] = float(n_pen)
     return out

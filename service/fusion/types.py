@@ -111,10 +111,26 @@ class FusionConfig:
     max_anchors: int = 1000  # anchors kept (random subset) to bound the hyperplane pool
     max_visible_points: int = 20_000  # near-surface pool for the convexity pairs
     below_table_outside: bool = True  # the object rests on the table at frame 0: space below it is outside
+    # table contacts: "planes" = their supporting planes only (hyperplane term); "points" = as every physible
+    # point (support-point rays, convexity, hull start; the paper). docs/fusion.md says why "planes".
+    table_points: str = "footprint"
+    table_normal_deg: float = 5.0  # a physible point is a table contact when its direction is within this of
+    table_tol: float = 0.005  # ... the table's downward normal in O and it lies this close to the table, m, at a tracked frame
+    # physible points below the table or inside the end effector at some tracked frame are dropped
+    drop_penetrating: bool = True
+    penetration_tol: float = 0.005  # m
+    # free-space evidence overrides physible points (service.fusion.carve)
+    free_space_drop: bool = True
+    free_margin: float = 0.01  # m in front of the (window-minimum) depth reading
+    free_radius_px: int = 3  # window radius of the minimum depth
+    free_min_frac: float = 0.2  # fraction of the frames observing a point that must find it empty
 
     def __post_init__(self):
         if self.init not in ("visible", "hull"):
             raise ValueError(f"FusionConfig.init must be 'visible' or 'hull', got {self.init!r}")
+        if self.table_points not in ("footprint", "planes", "hull", "points"):
+            raise ValueError("FusionConfig.table_points must be 'footprint', 'planes', 'hull' or 'points', "
+                             f"got {self.table_points!r}")
 
     @classmethod
     def fast(cls) -> "FusionConfig":

@@ -147,8 +147,8 @@ def write_box_session(root, n_frames: int = 6, width: int = 96, height: int = 72
     session = Session(
         name="box", root=root, sha256="0" * 64, frame_times=t, K=K, X_WC=X_WC, depth_scale=0.001,
         width=width, height=height, rgb_files=tuple(depth_files), depth_files=tuple(depth_files),
-        mask_files=tuple(mask_files), robot_t=t, robot_p_WE=np.zeros((n_frames, 3)), robot_cmd_WE=None,
-        p_WE=np.zeros((n_frames, 3)), cmd_WE=None, ee_radius=0.01, table_height=0.0,
+        mask_files=tuple(mask_files), robot_t=t, robot_p_WE=np.tile([0.3, 0.0, 0.3], (n_frames, 1)), robot_cmd_WE=None,
+        p_WE=np.tile([0.3, 0.0, 0.3], (n_frames, 1)), cmd_WE=None, ee_radius=0.01, table_height=0.0,
         table_height_detected=False, friction=Friction(), mass=None, has_ground_truth=False,
     )
     return session, X_WO

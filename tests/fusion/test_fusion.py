@@ -89,6 +89,8 @@ def test_bad_inputs(scene):
         run(dataclasses.replace(inputs, physible_normals_O=inputs.physible_normals_O[:3]), CFG)
     with pytest.raises(ValueError):
         FusionConfig(init="nope")
+    with pytest.raises(ValueError, match="table_points"):
+        FusionConfig(table_points="nope")
 
 
 def test_far_physible_outliers_are_dropped(scene):
@@ -165,3 +167,30 @@ def test_halfspace_below_the_table_stays_outside(scene):
     assert z.min() > -0.01 - out.sdf.voxel
     assert z.max() > HALF[2] - 0.004  # the top is still there
     assert out.mesh.to_trimesh().is_watertight
+
+
+def test_table_contacts_give_planes_not_points(scene):
+    """Table witness points spread 2 cm past the hidden +y face (a face-on-table contact fixes the plane, not
+    where on it the witness lies): used as points they pull the surface out to them; as planes they do not."""
+    from service.fusion import fuse
+
+    inputs, visible, _ = scene
+    rays = session_rays(inputs.session, inputs.X_WO, inputs.tracked, CFG)
+    rng = np.random.default_rng(3)
+    n_out = 30
+    Q = np.stack([rng.uniform(-0.03, 0.03, n_out), np.full(n_out, HALF[1] + 0.02), np.full(n_out, -HALF[2])], 1)
+    P = np.concatenate([inputs.physible_points_O, Q])
+    N = np.concatenate([inputs.physible_normals_O, np.tile([0.0, 0.0, -1.0], (n_out, 1))])
+    table = np.concatenate([inputs.physible_normals_O[:, 2] < -0.9, np.ones(n_out, bool)])
+    cfg = dataclasses.replace(CFG, sdf=dataclasses.replace(CFG.sdf, steps=80))
+    as_points = fuse(rays, visible, P, N, inputs.physible_mesh, dataclasses.replace(cfg, table_points="points"),
+                     table_mask=table)
+    as_planes = fuse(rays, visible, P, N, inputs.physible_mesh, cfg, table_mask=table)
+    probe = Q + np.array([0.0, 0.0, 0.01])  # 1 cm above the table, 2 cm past the true face
+    assert np.mean(sdf_query(as_points.sdf, probe)) < 0.004
+    assert np.mean(sdf_query(as_planes.sdf, probe)) > 0.01
+    assert as_planes.metrics["physible_table"] == table.sum()
+    truth = box_mesh()
+    assert chamfer(as_planes.mesh, truth) < chamfer(as_points.mesh, truth)
+    with pytest.raises(ValueError, match="table_mask"):
+        fuse(rays, visible, P, N, None, cfg, table_mask=table[:-1])

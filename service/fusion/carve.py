@@ -1,0 +1,64 @@
+"""Free-space evidence of the depth video for points in O (space carving, Kutulakos & Seitz 2000).
+
+A point p_O seen in frame i projects to pixel (u, v) = π(K X_CO(i) p_O) at camera depth z. When the sensor
+read a depth D > z + margin there — whatever it saw: the object's front, the table, the background —
+the ray crossed p_O before hitting anything, so p_O is empty space, i.e. outside the object. To stay
+conservative at silhouettes (pose and mask errors of a few pixels), D is the minimum depth over a
+(2r+1)² window, a window with a missing reading (0) is not evidence, and a point must be found empty
+in at least ``min_frac`` of the frames in which it is observable.
+
+``free_space_votes`` -> (n_free (P,), n_observed (P,)) over the given frames.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from service.transforms import X_inv
+
+
+def min_depth(depth: np.ndarray, radius_px: int) -> np.ndarray:
+    """(H,W) minimum of ``depth`` over a (2r+1)² window; 0 (no reading) anywhere in the window gives 0."""
+    import cv2
+
+    D = np.asarray(depth, np.float32)
+    if radius_px <= 0:
+        return D
+    k = 2 * radius_px + 1
+    return cv2.erode(D, np.ones((k, k), np.uint8), borderType=cv2.BORDER_REPLICATE)
+
+
+def free_space_votes(
+    points_O: np.ndarray,
+    depths: list[np.ndarray],
+    X_OC: list[np.ndarray],
+    K: np.ndarray,
+    *,
+    margin: float = 0.01,
+    radius_px: int = 3,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per point (P,3): number of frames in which it lies in observed empty space, and number of frames
+    in which it projects onto a valid reading. ``depths[i]`` (H,W) metres with camera pose ``X_OC[i]`` (4,4)
+    in O; K (3,3)."""
+    P = np.asarray(points_O, float).reshape(-1, 3)
+    n_free = np.zeros(len(P), np.int64)
+    n_obs = np.zeros(len(P), np.int64)
+    K = np.asarray(K, float)
+    for D, X in zip(depths, X_OC):
+        Dm = min_depth(D, radius_px)
+        H, W = Dm.shape
+        X_CO = X_inv(np.asarray(X, float))
+        pc = P @ X_CO[:3, :3].T + X_CO[:3, 3]
+        z = pc[:, 2]
+        ok = z > 1e-3
+        u = np.full(len(P), -1)
+        v = np.full(len(P), -1)
+        u[ok] = np.round(K[0, 0] * pc[ok, 0] / z[ok] + K[0, 2]).astype(int)
+        v[ok] = np.round(K[1, 1] * pc[ok, 1] / z[ok] + K[1, 2]).astype(int)
+        ok &= (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        d = np.zeros(len(P))
+        d[ok] = Dm[v[ok], u[ok]]
+        ok &= d > 0
+        n_obs += ok
+        n_free += ok & (z < d - margin)
+    return n_free, n_obs
