@@ -271,14 +271,14 @@ register(Effect(
     _sim_keys(("linear_damping",)),
     description="viscous linear damping rate b, 1/s: free motion v(t) = v(0) exp(-b t)",
     resolution=(0.05,),
-    modes=("free_flight", "sliding", "robot_contact"),
+    modes=("free_flight", "sliding"),
 ))
 register(Effect(
     "angular_damping", ("angular_damping",), (0.0,), (5.0,), (0.0,), _ang_damp_sig, _ang_damp_guess,
     _sim_keys(("angular_damping",)),
     description="viscous angular damping rate b, 1/s: free spin w(t) = w(0) exp(-b t)",
     resolution=(0.05,),
-    modes=("free_flight", "sliding", "robot_contact"),
+    modes=("free_flight", "sliding"),
 ))
 register(Effect(
     "friction_table", ("friction_object_table",), (0.02,), (1.5,), (float("nan"),), _fric_table_sig,
