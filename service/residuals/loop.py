@@ -583,7 +583,8 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
                 all_before, all_after = reduce_blocks(held_cur_frames), reduce_blocks(after_frames)
                 ok, why, rel = _decide(rel_before, rel_after, units[ho_idx], cfg, rng)
                 cand_nuis = nuis_fix
-                if ok and nuis_fix:
+                helps = e_train < (1.0 - 0.5 * cfg.min_rel_improvement) * train_before
+                if nuis_fix and (ok or (helps and not is_negligible(eff, theta, model))):
                     # joint refit with the corrections, then judged again against the corrected base
                     cand_nuis, theta = _refine_joint(nuis_fix, eff, theta, chosen, input_model, dict(input_model.effects),
                                                      ev, tr_n, cfg)
