@@ -37,8 +37,9 @@ corrections ``ResidualConfig.nuisance`` (default for learned models: per-princip
 s ∈ [0.5, 1.3]³ about the CoM with the inertia following, inertia factor, CoM shift, table height) are
 fitted jointly (Nelder–Mead, all frames of the training blocks) and kept when the training error falls
 by ≥ ``min_rel_improvement``; the contact modes are re-classified with the corrected geometry; effects are
-judged against this corrected base. A candidate that passes is refitted jointly with the corrections
-(so neither absorbs the other) and judged again against the same base. Corrections are reported
+judged against this corrected base. A candidate whose own fit lowers the training error (by ≥ half of
+``min_rel_improvement``) or passes is refitted jointly with the corrections (so neither absorbs the
+other) and judged against the same base. Corrections are reported
 (``ResidualOutputs.corrections``), never accepted as effects and not put into the output model.
 """
 
