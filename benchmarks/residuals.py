@@ -192,7 +192,8 @@ def lab(args) -> None:
                 truth = hidden[next(iter(hidden))]
                 truth = truth[0] if isinstance(truth, tuple) else truth
                 own = (f"; {name} fitted {c.params.get(key, float('nan')):.4g} (true {truth}), its frames "
-                       f"{c.heldout_error_before * 1e3:.2f} -> {c.heldout_error_after * 1e3:.2f} mm")
+                       f"{c.heldout_error_before * 1e3:.2f} -> {c.heldout_error_after * 1e3:.2f} mm"
+                       + ("" if c.accepted else f" ({c.reason[:110]})"))
             corr = {k: round(v, 3) for k, v in out.corrections.items()}
             print(f"{case:12s} seed {seed}: accepted {list(out.accepted)} {json.dumps({k: round(v, 4) for k, v in out.effects.items()})}"
                   f"{own}; held-out all frames {out.error_before['scalar_m'] * 1e3:.2f} -> "
