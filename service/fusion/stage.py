@@ -63,23 +63,27 @@ def session_rays(
     As in the first pass, an object pixel is used only when its back-projected point lies above the table
     (by ``cfg.table_clearance``) and, given the visible SDF, within ``cfg.denoise`` of its zero level set
     (BundleSDF drops rays > 2 cm from its point cloud). ``frames_out``, when given, receives
-    ``(depth (H,W), X_OC (4,4))`` of every frame read (for the free-space test of physible points)."""
+    ``(depth (H,W), X_OC (4,4), frame index, median |S_visible| of its object points (m, nan without the
+    visible SDF))`` of every frame read (free-space test and pose check of the physible filters)."""
     rng = np.random.default_rng(cfg.seed)
     K = np.asarray(session.K, float)
     parts = []
     for i in select_frames(tracked, cfg.max_frames):
         X_OC = X_inv(X_WO[i]) @ session.X_WC
         depth, mask = session.depth(int(i)), session.mask(int(i))
-        if frames_out is not None:
-            frames_out.append((depth, X_OC))
         v, u = np.nonzero(mask & (depth > 0))
         d = depth[v, u].astype(float)
         P_C = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], 1)
         P_W = P_C @ session.X_WC[:3, :3].T + session.X_WC[:3, 3]
         ok = P_W[:, 2] > session.table_height + cfg.table_clearance
+        resid = np.nan
         if visible_sdf is not None and len(P_C):
             P_O = P_C @ X_OC[:3, :3].T + X_OC[:3, 3]
-            ok &= np.abs(_sdf_extended(visible_sdf, P_O)) < cfg.denoise
+            dist = np.abs(_sdf_extended(visible_sdf, P_O))
+            resid = float(np.median(dist[ok])) if ok.any() else np.nan
+            ok &= dist < cfg.denoise
+        if frames_out is not None:
+            frames_out.append((depth, X_OC, int(i), resid))
         keep = np.zeros(mask.shape, bool)
         keep[v[ok], u[ok]] = True
         parts.append(
@@ -328,15 +332,20 @@ def run(inputs: FusionInputs, cfg: FusionConfig, *, progress: Progress = None) -
         raise ValueError(f"FusionInputs: physible points {P.shape} and normals {N.shape} differ in shape")
     n_free = 0
     if cfg.free_space_drop and len(P) and frames:  # free space seen by the camera overrides contact
-        votes, n_obs = free_space_votes(P, [d for d, _ in frames], [x for _, x in frames], inputs.session.K,
+        votes, n_obs = free_space_votes(P, [f[0] for f in frames], [f[1] for f in frames], inputs.session.K,
                                         margin=cfg.free_margin, radius_px=cfg.free_radius_px)
         free = (votes >= 1) & (votes >= cfg.free_min_frac * n_obs)
         n_free = int(free.sum())
         P, N = P[~free], N[~free]
+    # poses checked for penetration: the frames read whose depth agrees with the visible SDF under the pose
+    # (a wrong pose can sink the unseen part of the object into the table while its seen part still fits)
+    checked = np.zeros(n, bool)
+    for _, _, i, resid in frames:
+        checked[i] = np.isfinite(resid) and resid <= cfg.pose_residual_max
     del frames
     n_pen = 0
     if cfg.drop_penetrating and len(P):  # contact points the tracked motion would push through table or robot
-        pen = penetrating(P, X_WO, tracked, float(inputs.session.table_height), inputs.session.p_WE,
+        pen = penetrating(P, X_WO, checked, float(inputs.session.table_height), inputs.session.p_WE,
                           float(inputs.session.ee_radius), cfg.penetration_tol)
         n_pen = int(pen.sum())
         P, N = P[~pen], N[~pen]
@@ -361,4 +370,5 @@ def run(inputs: FusionInputs, cfg: FusionConfig, *, progress: Progress = None) -
     out.metrics["time_rays_s"] = t_rays
     out.metrics["physible_free_dropped"] = float(n_free)
     out.metrics["physible_penetrating_dropped"] = float(n_pen)
+    out.metrics["frames_pose_checked"] = float(checked.sum())
     return out

@@ -111,14 +111,17 @@ class FusionConfig:
     max_anchors: int = 1000  # anchors kept (random subset) to bound the hyperplane pool
     max_visible_points: int = 20_000  # near-surface pool for the convexity pairs
     below_table_outside: bool = True  # the object rests on the table at frame 0: space below it is outside
-    # table contacts: "planes" = their supporting planes only (hyperplane term); "points" = as every physible
-    # point (support-point rays, convexity, hull start; the paper). docs/fusion.md says why "planes".
-    table_points: str = "footprint"
+    # table contacts (service.fusion.stage.table_contacts): "points" = as every physible point (support-point
+    # rays, convexity, hull start; the paper); "footprint" = as points only inside the footprint of the other
+    # evidence, else their plane only; "planes" = their supporting planes only; "hull" = planes + hull start.
+    # docs/fusion.md compares them.
+    table_points: str = "points"
     table_normal_deg: float = 5.0  # a physible point is a table contact when its direction is within this of
     table_tol: float = 0.005  # ... the table's downward normal in O and it lies this close to the table, m, at a tracked frame
-    # physible points below the table or inside the end effector at some tracked frame are dropped
+    # physible points below the table or inside the end effector at some pose-checked frame are dropped
     drop_penetrating: bool = True
     penetration_tol: float = 0.005  # m
+    pose_residual_max: float = 0.005  # frames used for it: median |S_visible| of their depth points ≤ this, m
     # free-space evidence overrides physible points (service.fusion.carve)
     free_space_drop: bool = True
     free_margin: float = 0.01  # m in front of the (window-minimum) depth reading

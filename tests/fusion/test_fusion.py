@@ -185,7 +185,8 @@ def test_table_contacts_give_planes_not_points(scene):
     cfg = dataclasses.replace(CFG, sdf=dataclasses.replace(CFG.sdf, steps=80))
     as_points = fuse(rays, visible, P, N, inputs.physible_mesh, dataclasses.replace(cfg, table_points="points"),
                      table_mask=table)
-    as_planes = fuse(rays, visible, P, N, inputs.physible_mesh, cfg, table_mask=table)
+    as_planes = fuse(rays, visible, P, N, inputs.physible_mesh, dataclasses.replace(cfg, table_points="footprint"),
+                     table_mask=table)
     probe = Q + np.array([0.0, 0.0, 0.01])  # 1 cm above the table, 2 cm past the true face
     assert np.mean(sdf_query(as_points.sdf, probe)) < 0.004
     assert np.mean(sdf_query(as_planes.sdf, probe)) > 0.01
@@ -194,3 +195,19 @@ def test_table_contacts_give_planes_not_points(scene):
     assert chamfer(as_planes.mesh, truth) < chamfer(as_points.mesh, truth)
     with pytest.raises(ValueError, match="table_mask"):
         fuse(rays, visible, P, N, None, cfg, table_mask=table[:-1])
+
+
+def test_penetration_filter_uses_only_poses_the_depth_agrees_with(scene):
+    """A wrong pose that sinks the box 3 cm into the table would drop every bottom contact; its depth disagrees
+    with the visible SDF, so it is not used to judge the physible points."""
+    inputs, _, _ = scene
+    cfg = dataclasses.replace(CFG, sdf=dataclasses.replace(CFG.sdf, steps=5))
+    X_bad = inputs.X_WO.copy()
+    X_bad[3, 2, 3] -= 0.03
+    bad = dataclasses.replace(inputs, X_WO=X_bad)
+    out = run(bad, cfg)
+    assert out.metrics["physible_penetrating_dropped"] == 0
+    assert out.metrics["frames_pose_checked"] == len(X_bad) - 1
+    unchecked = run(bad, dataclasses.replace(cfg, pose_residual_max=np.inf))
+    assert unchecked.metrics["physible_penetrating_dropped"] >= 40  # every bottom contact, at least
+    assert run(inputs, cfg).metrics["physible_penetrating_dropped"] == 0
