@@ -16,6 +16,8 @@ frozen frames 0287–0360, and the cube's size from the oriented box of the visi
     python benchmarks/tracking.py --only synth --set new   # the cases 704-712 only (old: 701-703)
     python benchmarks/tracking.py --only synth    # or: --only real
     python benchmarks/tracking.py --one DIR       # one synthetic session folder
+    python benchmarks/tracking.py --set new --cfg '{"ba_iters": 0, "refine_rounds": 2, "regauge_frame0": false}'
+                                                  # the same cases with settings changed (here: before the BA)
 
 Each session runs in a fresh process so that its peak RSS (resource.getrusage) is its own. Timings on a shared
 machine are inflated; the load average and the process CPU time (≈ the wall time on an idle machine, the stage
@@ -123,7 +125,7 @@ def _observed_vertices(out) -> np.ndarray:
     return g.observed[k[:, 0], k[:, 1], k[:, 2]]
 
 
-def run_one(kind: str, path: Path) -> dict:
+def run_one(kind: str, path: Path, overrides: dict | None = None) -> dict:
     import trimesh
 
     from service.session import load_session
@@ -140,7 +142,9 @@ def run_one(kind: str, path: Path) -> dict:
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
     cpu0 = ru0.ru_utime + ru0.ru_stime
     t0 = time.perf_counter()
-    out = run(TrackingInputs(s), TrackingConfig(), progress=progress)
+    from dataclasses import replace
+
+    out = run(TrackingInputs(s), replace(TrackingConfig(), **(overrides or {})), progress=progress)
     wall = time.perf_counter() - t0
     ru = resource.getrusage(resource.RUSAGE_SELF)
     cpu = ru.ru_utime + ru.ru_stime - cpu0
@@ -205,9 +209,10 @@ def main() -> None:
     ap.add_argument("--one", type=Path)
     ap.add_argument("--kind", default="synth", choices=["synth", "real"])
     ap.add_argument("--work", type=Path, default=Path("/tmp/vysics-bench-tracking"))
+    ap.add_argument("--cfg", default="{}", help='TrackingConfig overrides as JSON, e.g. \'{"ba_iters": 0}\'')
     a = ap.parse_args()
     if a.one:
-        print(json.dumps(run_one(a.kind, a.one)))
+        print(json.dumps(run_one(a.kind, a.one, json.loads(a.cfg))))
         return
     print("command:", " ".join(shlex.quote(x) for x in [sys.executable] + sys.argv))
     rows = []
@@ -219,7 +224,8 @@ def main() -> None:
     if a.only in (None, "real"):
         rows.append(("real", REAL))
     for kind, d in rows:
-        p = subprocess.run([sys.executable, __file__, "--one", str(d), "--kind", kind], capture_output=True, text=True)
+        p = subprocess.run([sys.executable, __file__, "--one", str(d), "--kind", kind, "--cfg", a.cfg],
+                           capture_output=True, text=True)
         if p.returncode:
             print(f"{d.name}: FAILED\n{p.stderr[-2000:]}")
             continue
