@@ -5,8 +5,8 @@ p^k (N_k,3) with normals n^k observed in W; in O they are P^k = X_OW^k p^k. For 
 keyframes whose point sets overlap, nearest neighbours q ∈ P^a of the points p ∈ P^b within a shrinking
 radius (normals compatible) give point-to-plane residuals
     r = n_q · (p − q),
-and ORB matches between the two keyframes that agree with the current poses (RANSAC in O) give point-to-point
-residuals e = p_f − q_f. With small motions applied in O, X_OW^k ← Exp(δ_k) X_OW^k, δ_k = [ω_k, τ_k]:
+and, optionally, ORB matches between the two keyframes that agree with the current poses (RANSAC in O) give
+point-to-point residuals e = p_f − q_f. With small motions applied in O, X_OW^k ← Exp(δ_k) X_OW^k, δ_k = [ω_k, τ_k]:
     ∂r/∂δ_b = [p × n, n],  ∂r/∂δ_a = −[p × n, n];   ∂e/∂δ_b = [−[p_f]×, I],  ∂e/∂δ_a = [[q_f]×, −I].
 The robust cost Σ ρ_H(r) + λ_f Σ ρ_C(‖e‖) (Huber for the planes, Cauchy for the features) is minimised by
 iteratively reweighted Gauss–Newton with Levenberg damping on the stacked δ (6(K−1) unknowns, dense normal
