@@ -470,7 +470,7 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
         raise InvalidInput("ResidualConfig.candidates", f"unknown effects {unknown}; known: {sorted(REGISTRY)}")
     names = [n for n in names if has_robot or not REGISTRY[n].needs_robot]
     nuis_names = list(cfg.nuisance) if cfg.nuisance is not None else (
-        list(NUISANCE_LEARNED) if inputs.step_residuals is not None else [])
+        list(NUISANCE_LEARNED) if inputs.step_residuals is not None and has_robot else [])
     bad = [n for n in nuis_names if n not in REGISTRY]
     if bad:
         raise InvalidInput("ResidualConfig.nuisance", f"unknown corrections {bad}; known: {sorted(REGISTRY)}")

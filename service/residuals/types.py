@@ -119,7 +119,7 @@ class ResidualConfig:
     # Nuisance refit before judging effects: corrections of the fitted model's own uncertain parameters
     # (geometry scale, CoM, table height), fitted jointly on the training blocks and never accepted as
     # effects. None = ``effects.NUISANCE_LEARNED`` when the model was learned from this session
-    # (``step_residuals`` given), else none; () = off.
+    # (``step_residuals`` given) and a robot drives the object (the pipeline), else none; () = off.
     nuisance: tuple[str, ...] | None = None
     nuisance_maxiter: int = 80  # Nelder-Mead evaluations of the joint nuisance fit
     max_nuisance_segments: int = 24  # training blocks of the nuisance fit (and of the joint refit)
