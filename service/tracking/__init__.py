@@ -3,7 +3,8 @@ Session, with no pretrained model and no object model (the role BundleSDF plays 
 
 Entry point ``run(TrackingInputs, TrackingConfig, *, progress=None) -> TrackingOutputs``:
 1. tracking (``service.tracking.tracker``): ORB+RANSAC coarse motion, point-to-plane ICP against the keyframe
-   model, keyframe refinement, lost-track detection, interpolation of untracked frames;
+   model, keyframe bundle adjustment (``service.tracking.posegraph``) and leave-one-out refinement, lost-track
+   detection and re-localisation, interpolation of untracked frames;
 2. velocities (``service.tracking.velocity``): median-filtered backward differences (method-notes §1.3);
 3. visible SDF (``service.sdf.fit_sdf``) from the depth rays of tracked frames, marching cubes -> visible mesh;
 4. visible set V (``service.tracking.visible``): convex-hull points of the mesh that pass a visibility check.

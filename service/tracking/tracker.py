@@ -13,7 +13,7 @@ Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth,
    its points (those within grow_dist of the model, which rejects mask noise) to the model.
 Drift is bounded by (a) frame-to-model rather than frame-to-frame registration, (b) a bundle adjustment of
 all keyframe poses (``service.tracking.posegraph``: robust point-to-plane and ORB feature terms between every
-pair of overlapping keyframes, keyframe 0 fixed), optionally followed by leave-one-out refinement (each
+pair of overlapping keyframes, keyframe 0 fixed), followed by leave-one-out refinement (each
 keyframe re-registered to the model of all the others), (c) a final pass registering every frame to the
 refined model, and (d) frame 0 registered to that model as well, the body frame moved by the constant offset
 so that X_WO(0) keeps its definition (a mismatch between frame 0 and the merged model would otherwise be an
