@@ -15,6 +15,15 @@ session's ground truth, as the report does:
 
     python benchmarks/pipeline.py --work W --preset fast     # process a synthetic session
     python benchmarks/fusion.py --data W/data --sha <session sha256>
+
+With ``--data DIR --rerun-all`` it reruns fusion with the default ``FusionConfig`` on every session of a
+store (e.g. the ``--data-dir`` of ``vysics bench``), each with the tracking and contact outputs stored for
+it, evaluates geometry and dynamics with ``EvaluationConfig()`` as the pipeline does, and prints the
+chamfer table (cm) per session and the means; with ``--reports DIR`` (the bench's ``reports/``) it also
+prints the fused chamfer the stored run had (fusion before / after on identical inputs):
+
+    vysics bench --out B --preset small --seeds 21 --data-dir D
+    python benchmarks/fusion.py --data D --rerun-all --reports B/reports
 """
 
 from __future__ import annotations
@@ -92,6 +101,60 @@ def stored_session(data: Path, sha: str) -> None:
         score(name, out.mesh, f", {time.process_time() - c0:.1f} s CPU")
 
 
+def rerun_all(data: Path, reports: Path | None) -> None:
+    """Default fusion on every session of a store, on its stored tracking/contact outputs; full evaluation."""
+    import json
+
+    import service.evaluation as evaluation
+    from service.bundle import assemble_model
+    from service.contact.types import ContactOutputs
+    from service.evaluation.types import EvaluationConfig, EvaluationInputs
+    from service.io import load_value
+    from service.session.ingest import load_session
+    from service.tracking.types import TrackingOutputs
+
+    def manifests(stage: str) -> list[dict]:
+        return [json.loads(m.read_text()) for m in (data / "artifacts" / stage).glob("*/manifest.json")]
+
+    ingest = {m["key"]: m["metrics"] for m in manifests("ingest")}
+    rows = []
+    for m in sorted(manifests("contact"), key=lambda m: ingest[m["inputs"]["session"]]["name"]):
+        meta = ingest[m["inputs"]["session"]]
+        session = load_session(data / "sessions" / meta["sha256"], meta["sha256"])
+        tr = load_value(TrackingOutputs, data / "artifacts" / "tracking" / m["inputs"]["tracking"] / "value")
+        co = load_value(ContactOutputs, data / "artifacts" / "contact" / m["key"] / "value")
+        c0, t0 = time.process_time(), time.perf_counter()
+        fu = run(FusionInputs(session, tr.X_WO, tr.tracked, tr.sdf, co.physible_points_O, co.physible_normals_O,
+                              co.physible_mesh), FusionConfig())
+        cpu, wall = time.process_time() - c0, time.perf_counter() - t0
+        meshes = {"vision_only": tr.visible_mesh, "physics_only": co.physible_mesh, "fused": fu.mesh}
+        models = {k: assemble_model(session, co, v) for k, v in meshes.items() if not v.is_empty}
+        ev = evaluation.run(EvaluationInputs(session=session, t=tr.t, X_WO=tr.X_WO, tracked=tr.tracked,
+                                             meshes=meshes, models=models), EvaluationConfig())
+        cd = {k: 100 * ev.geometry[k]["chamfer_m"] for k in meshes}
+        before = None
+        if reports is not None and (reports / f"{meta['name']}.json").is_file():
+            before = 100 * json.loads((reports / f"{meta['name']}.json").read_text())["geometry"]["fused"]["chamfer_m"]
+        div = {k: (ev.dynamics.get(k) or {}).get("time_before_divergence_s") for k in ("fused", "ground_truth_geometry")}
+        rows.append((meta["name"], cd, before, div))
+        print(f"{meta['name']}: chamfer vision {cd['vision_only']:.2f}, physics {cd['physics_only']:.2f}, fused "
+              f"{cd['fused']:.2f}" + ("" if before is None else f" (stored run {before:.2f})") + f" cm; fusion "
+              f"{wall:.1f} s wall, {cpu:.1f} s CPU; dropped {fu.metrics['physible_penetrating_dropped']:.0f} "
+              f"penetrating, {fu.metrics['physible_free_dropped']:.0f} seen-through", flush=True)
+    if not rows:
+        raise SystemExit(f"{data}: no stored contact outputs")
+    mean = {k: float(np.mean([r[1][k] for r in rows])) for k in rows[0][1]}
+    print(f"mean chamfer (cm): vision {mean['vision_only']:.2f}, physics {mean['physics_only']:.2f}, fused "
+          f"{mean['fused']:.2f}; fused / vision {mean['fused'] / mean['vision_only']:.2f}")
+    if all(r[2] is not None for r in rows):
+        b = float(np.mean([r[2] for r in rows]))
+        print(f"stored run: fused {b:.2f}, fused / vision {b / mean['vision_only']:.2f}")
+    td = [r[3] for r in rows if None not in r[3].values()]
+    if td:
+        f, g = np.mean([d["fused"] for d in td]), np.mean([d["ground_truth_geometry"] for d in td])
+        print(f"time before divergence: fused {f:.2f} s, true geometry {g:.2f} s, ratio {f / g:.2f}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", type=Path, help="flow data folder of a processed session (with --sha)")
@@ -100,7 +163,12 @@ def main() -> None:
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=480)
     ap.add_argument("--compare", action="store_true", help="also run the extent and init variants")
+    ap.add_argument("--rerun-all", action="store_true", help="with --data: default fusion on every stored session")
+    ap.add_argument("--reports", type=Path, help="with --rerun-all: the bench's reports/ folder (stored fused chamfer)")
     args = ap.parse_args()
+    if args.data is not None and args.rerun_all:
+        rerun_all(args.data, args.reports)
+        return
     if args.data is not None:
         stored_session(args.data, args.sha)
         return
