@@ -540,9 +540,10 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
         base_err = float(reduce_blocks(held_cur_frames).mean())
         pinned = [n for n, th in nuis_fix.items() if at_bound(REGISTRY[n], th)]
         why_not = None
-        if base_err > cfg.max_base_error_rel * rot_scale:
+        max_rel = cfg.max_base_error_rel_learned if nuis_names else cfg.max_base_error_rel
+        if base_err > max_rel * rot_scale:
             why_not = (f"the {'corrected ' if corrections else ''}model's held-out error {base_err * 1e3:.1f} mm exceeds "
-                       f"{cfg.max_base_error_rel:.0%} of the object radius ({rot_scale * 1e3:.0f} mm)")
+                       f"{max_rel:.0%} of the object radius ({rot_scale * 1e3:.0f} mm)")
         elif pinned:
             why_not = f"the model's corrections {pinned} went to their bounds"
         nuisance_report["model_adequate"] = why_not is None

@@ -127,6 +127,11 @@ class ResidualConfig:
     # radius, or when a nuisance correction had to go to its bound: such a model does not explain the
     # motion, and any effect would only compensate for it.
     max_base_error_rel: float = 0.1
+    # the same bound for a model learned from the session (nuisance refit on): its corrected error must come
+    # near the tracking floor (lab sessions: 2-3.4 % of the radius for a model of catalogue quality; the
+    # true shape on tracked poses 3-5 %); learned models at 7-10 % still let a clock offset stand in for
+    # their errors
+    max_base_error_rel_learned: float = 0.05
 
     @classmethod
     def fast(cls) -> "ResidualConfig":
