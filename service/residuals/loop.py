@@ -66,7 +66,7 @@ from service.residuals.effects import (
     is_negligible,
     null_params,
 )
-from service.residuals.modes import FREE, IMPACT, classify, mode_statistics, object_radius
+from service.residuals.modes import FREE, IMPACT, classify, collision_vertices, mode_statistics, object_radius
 from service.residuals.types import (
     MODES,
     EffectCandidate,
@@ -541,9 +541,14 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
         pinned = [n for n, th in nuis_fix.items() if at_bound(REGISTRY[n], th)]
         why_not = None
         max_rel = cfg.max_base_error_rel_learned if nuis_names else cfg.max_base_error_rel
-        if base_err > max_rel * rot_scale:
+        # object size for this bound: half the diagonal of the geometry's principal-axes box (a CoM far off
+        # the shape, as in a poor learned model, must not enlarge it)
+        Vc = collision_vertices(model)
+        Vc = Vc - Vc.mean(0)
+        size = 0.5 * float(np.linalg.norm(np.ptp(Vc @ np.linalg.svd(Vc, full_matrices=False)[2].T, axis=0)))
+        if base_err > max_rel * size:
             why_not = (f"the {'corrected ' if corrections else ''}model's held-out error {base_err * 1e3:.1f} mm exceeds "
-                       f"{max_rel:.0%} of the object radius ({rot_scale * 1e3:.0f} mm)")
+                       f"{max_rel:.0%} of the object size ({size * 1e3:.0f} mm, half its box diagonal)")
         elif pinned:
             why_not = f"the model's corrections {pinned} went to their bounds"
         nuisance_report["model_adequate"] = why_not is None
