@@ -29,6 +29,7 @@ from service.contact.learn import (
     vision_loss,
 )
 from service.contact.geometry import outward_directions_to
+from service.contact.inertia import enclosing_ellipsoid, realizability_ratio
 from service.contact.solver import SolverSettings
 from service.contact.types import ContactConfig, ContactInputs, ContactOutputs, StepResiduals
 from service.errors import StageFailed
@@ -98,8 +99,11 @@ def train(model: ContactModel, tr: Transitions, dt: float, cfg: ContactConfig, *
         tot, cnt = 0.0, 0
         th = time.perf_counter()
         ee_dirs_all = n_vis = None
-        if need_hull:
+        if need_hull or cfg.w_realizable > 0:
             hull = export(model, cfg.export_grid)[0]
+            if cfg.w_realizable > 0:  # the ellipsoid enclosing the current geometry bounds CoM and inertia
+                e_np, A_np = enclosing_ellipsoid(hull.vertices)
+                ell = (torch.as_tensor(e_np, dtype=torch.float64), torch.as_tensor(A_np, dtype=torch.float64))
             if c_O is not None:
                 ee_dirs_all = torch.as_tensor(outward_directions_to(hull, c_O, cfg.closest_candidates)[2], dtype=torch.float64)
             if V is not None:
@@ -122,6 +126,8 @@ def train(model: ContactModel, tr: Transitions, dt: float, cfg: ContactConfig, *
             loss = res.loss
             if V is not None:
                 loss = loss + w.vision * vision_loss(model, V, None, n_vis)
+            if cfg.w_realizable > 0:
+                loss = loss + cfg.w_realizable * (realizability_ratio(model.inertia, *ell) - 1.0).clamp_min(0.0) ** 2
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -284,7 +290,12 @@ def _run(inputs: ContactInputs, cfg: ContactConfig, progress: Progress) -> Conta
         com = model.inertia.com.detach().numpy().copy()
         m = float(model.inertia.mass)
         mu = model.mu.detach().numpy()
+        e_np, A_np = enclosing_ellipsoid(mesh.vertices)
+        ratio = float(realizability_ratio(model.inertia, torch.as_tensor(e_np), torch.as_tensor(A_np)))
     metrics = {
+        # tr(A(Σ + δδᵀ)) for the ellipsoid enclosing the learned geometry: ≤ 1 when a mass inside it can have
+        # this CoM and inertia (inertia.py)
+        "inertia_realizability": ratio,
         "final_loss": float(tres.loss_history[-1]) if len(tres.loss_history) else float("nan"),
         "best_loss": float(tres.loss_history[tres.best_epoch]) if len(tres.loss_history) else float("nan"),
         "best_epoch": float(tres.best_epoch),

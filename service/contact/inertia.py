@@ -5,6 +5,13 @@ the mass distribution about the CoM per unit mass), central inertia I_c = m (tr(
 Every θ gives a valid inertia (Σ ≻ 0 ⇒ I_c ≻ 0 and the triangle inequalities hold).
 Inverse: Σ = ½ tr(I_c/m) I₃ − I_c/m, then Cholesky. Mass m = exp(log m) is fixed by default (impulses
 scale with m, so it is not observable from motion alone).
+
+Density realizability (Wensing, Kim & Slotine 2017, "Linear matrix inequalities for physically consistent
+inertial parameter identification"): a mass distribution inside the ellipsoid E = {x : (x − e)ᵀA(x − e) ≤ 1}
+has ∫ρ (x − e)ᵀA(x − e) dx ≤ m, i.e. tr(A (Σ + (c − e)(c − e)ᵀ)) ≤ 1 (which also keeps the CoM c inside E).
+Log-Cholesky parameters guarantee Σ ≻ 0 only; they allow a body whose inertia no mass inside its own shape
+could have. ``realizability_ratio`` > 1 measures how far θ is outside the bound of the ellipsoid enclosing
+the current geometry (``enclosing_ellipsoid``, Khachiyan's minimum-volume algorithm).
 """
 
 from __future__ import annotations
@@ -74,3 +81,40 @@ class RigidBodyInertia(nn.Module):
 
     def central_inertia(self) -> torch.Tensor:
         return inertia_from_params(self.d, self.s, self.mass)
+
+
+def enclosing_ellipsoid(points: np.ndarray, tol: float = 1e-3, max_iter: int = 500) -> tuple[np.ndarray, np.ndarray]:
+    """Minimum-volume ellipsoid {x : (x − e)ᵀA(x − e) ≤ 1} enclosing points (P,3) (Khachiyan 1996, as in
+    Todd & Yıldırım 2007). Returns (e (3,), A (3,3)). Degenerate (flat) point sets get a 1 mm thickness."""
+    P = np.asarray(points, float)
+    P = P + 1e-3 * np.random.default_rng(0).standard_normal(P.shape) * (np.ptp(P, axis=0).min() < 1e-3)
+    n, d = P.shape
+    Q = np.vstack([P.T, np.ones(n)])  # (4,n)
+    u = np.full(n, 1.0 / n)
+    for _ in range(max_iter):
+        X = (Q * u) @ Q.T
+        M = np.einsum("in,ij,jn->n", Q, np.linalg.inv(X), Q)
+        j = int(np.argmax(M))
+        step = (M[j] - d - 1.0) / ((d + 1.0) * (M[j] - 1.0))
+        new_u = (1.0 - step) * u
+        new_u[j] += step
+        done = np.linalg.norm(new_u - u) < tol
+        u = new_u
+        if done:
+            break
+    e = P.T @ u
+    A = np.linalg.inv((P.T * u) @ P - np.outer(e, e)) / d
+    # Khachiyan's ellipsoid encloses the points only up to tol: scale it to contain every point exactly
+    r = np.einsum("ni,ij,nj->n", P - e, A, P - e).max()
+    return e, A / max(r, 1.0)
+
+
+def realizability_ratio(inertia: "RigidBodyInertia", e: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
+    """tr(A (Σ + (c − e)(c − e)ᵀ)): ≤ 1 when the inertia and CoM can come from a mass distribution inside the
+    ellipsoid (e, A) (module docstring); differentiable in the log-Cholesky parameters and the CoM."""
+    z = torch.zeros((), dtype=inertia.d.dtype)
+    ex = torch.exp(inertia.d)
+    s = inertia.s
+    L = torch.stack([torch.stack([ex[0], z, z]), torch.stack([s[0], ex[1], z]), torch.stack([s[1], s[2], ex[2]])])
+    dc = inertia.com - e
+    return torch.trace(A @ (L @ L.T)) + dc @ A @ dc

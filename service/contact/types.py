@@ -76,6 +76,7 @@ class ContactConfig:
     w_diss: float = 5000.0
     w_pen: float = 0.5
     w_vision: float = 0.04
+    w_realizable: float = 1.0  # density realizability of the inertia inside the current geometry (0 = off)
     # geometry
     geometry: str = "dsf"  # "dsf" deep support function (Vysics) | "polytope" learnable vertices (ContactNets)
     n_vertices: int = 300  # polytope: number of vertices (initialised on the guess / ball)
@@ -116,7 +117,7 @@ class ContactConfig:
         10-30 % too large. The deep support function learned the real cube with its corners cut (support along
         (1,1,1) 59 mm instead of 91 mm), and the rounded shape rolls in open-loop rollouts (~80° rotation error);
         the polytope gets 85-86 mm and the true cube's rollout error (docs/contact.md)."""
-        return cls(**{"w_pen": 50.0, "geometry": "polytope", **kw})
+        return cls(**{"w_pen": 50.0, "geometry": "polytope", "w_realizable": 0.0, **kw})
 
     @classmethod
     def fast(cls) -> "ContactConfig":
