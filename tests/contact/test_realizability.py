@@ -26,11 +26,11 @@ def test_ratio_separates_realizable_from_unrealizable_inertia():
     m = 0.35
     e, A = (torch.as_tensor(x) for x in enclosing_ellipsoid(_box_corners(h)))
     uniform = RigidBodyInertia(m, np.zeros(3), solid_box_inertia(h, m))
-    assert abs(float(realizability_ratio(uniform, e, A)) - 1 / 3) < 0.02  # Σ = diag(h²/3), semi-axes √3 h
+    assert abs(float(realizability_ratio(uniform, e, A).detach()) - 1 / 3) < 0.02  # Σ = diag(h²/3), semi-axes √3 h
     too_large = RigidBodyInertia(m, np.zeros(3), 10 * solid_box_inertia(h, m))
-    assert float(realizability_ratio(too_large, e, A)) > 3.0
+    assert float(realizability_ratio(too_large, e, A).detach()) > 3.0
     off_centre = RigidBodyInertia(m, np.array([0.0, 0.08, 0.0]), solid_box_inertia(h, m))  # CoM outside the box
-    assert float(realizability_ratio(off_centre, e, A)) > 1.0
+    assert float(realizability_ratio(off_centre, e, A).detach()) > 1.0
 
 
 def test_penalty_gradient_pulls_an_unrealizable_inertia_back():
@@ -44,6 +44,6 @@ def test_penalty_gradient_pulls_an_unrealizable_inertia_back():
         loss = (realizability_ratio(body, e, A) - 1.0).clamp_min(0.0) ** 2
         loss.backward()
         opt.step()
-    assert float(realizability_ratio(body, e, A)) < 1.05
+    assert float(realizability_ratio(body, e, A).detach()) < 1.05
     I = body.central_inertia().detach().numpy()
     assert np.all(np.linalg.eigvalsh(I) > 0)
