@@ -112,19 +112,8 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
 
     # ----------------------------------------------------------------------------- scene layout
     obj = make_object(spec.object, spec.scale, spec.mass)
-    table_h = float(spec.table_height) if spec.table_height is not None else float(rng_scene.uniform(-0.05, 0.05))
-    start_xy = np.array([0.5 + rng_scene.uniform(-0.04, 0.04), rng_scene.uniform(-0.04, 0.04)])
-    start_yaw = float(rng_scene.uniform(-np.pi, np.pi))
-    dist = float(spec.camera_distance) if spec.camera_distance is not None else float(rng_scene.uniform(0.6, 0.9))
-    az = CAMERA_SIDES.get(spec.camera_side, 0.0) + rng_scene.uniform(-0.45, 0.45)
-    el = rng_scene.uniform(0.5, 0.8)
-    if spec.camera_side == "random":
-        az += float(rng_scene.choice([-np.pi / 2, 0.0, np.pi / 2]))
-    target = np.array([start_xy[0], start_xy[1], table_h + 0.45 * float(obj.extents[2])])
-    eye = target + dist * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    X_WC = look_at(eye, target)
+    table_h, start_xy, start_yaw, X_WC, lateral = scene_layout(spec, obj, rng_scene)
     K = intrinsics(W, H)
-    lateral = X_WC[:2, 0] / np.linalg.norm(X_WC[:2, 0])
     shoulder = np.array([0.0, 0.0, table_h + 0.7])
 
     # ----------------------------------------------------------------------------- physics
@@ -327,3 +316,21 @@ def make_archive(session_dir: Path, archive_path: Path) -> Path:
     else:
         raise ValueError(f"{archive_path}: expected a .zip, .tar, .tar.gz or .tgz name")
     return archive_path
+
+
+def scene_layout(spec: SynthSpec, obj, rng_scene: np.random.Generator) -> tuple[float, np.ndarray, float, np.ndarray, np.ndarray]:
+    """Table height, object start (xy (2,), yaw), camera pose X_WC (4,4) and the lateral push direction (2,) of a
+    session, drawn from the scene stream of its seed (the first of the five streams of ``SeedSequence(seed)``)."""
+    table_h = float(spec.table_height) if spec.table_height is not None else float(rng_scene.uniform(-0.05, 0.05))
+    start_xy = np.array([0.5 + rng_scene.uniform(-0.04, 0.04), rng_scene.uniform(-0.04, 0.04)])
+    start_yaw = float(rng_scene.uniform(-np.pi, np.pi))
+    dist = float(spec.camera_distance) if spec.camera_distance is not None else float(rng_scene.uniform(0.6, 0.9))
+    az = CAMERA_SIDES.get(spec.camera_side, 0.0) + rng_scene.uniform(-0.45, 0.45)
+    el = rng_scene.uniform(0.5, 0.8)
+    if spec.camera_side == "random":
+        az += float(rng_scene.choice([-np.pi / 2, 0.0, np.pi / 2]))
+    target = np.array([start_xy[0], start_xy[1], table_h + 0.45 * float(obj.extents[2])])
+    eye = target + dist * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    X_WC = look_at(eye, target)
+    lateral = X_WC[:2, 0] / np.linalg.norm(X_WC[:2, 0])
+    return table_h, start_xy, start_yaw, X_WC, lateral

@@ -1,6 +1,6 @@
 """Synthetic-lab sessions without rendering: the lab's physics, the robot log as robot.csv gives it.
 
-``lab_session(spec)`` lays out the scene exactly as ``service.synth.make_session`` does (same seed streams),
+``lab_session(spec)`` lays out the scene with ``service.synth.make_session``'s own ``scene_layout`` (same seed streams),
 runs the lab's physics (``service.synth.sim.simulate``: impedance-driven sphere, hidden effects, rolling
 resistance, 240 Hz), and returns what the residual loop would get when tracking were perfect up to a
 noise of the given size: the object's poses at the frame times (mesh frame, plus Gaussian noise), the
@@ -25,8 +25,7 @@ from service.model import ObjectModel
 from service.residuals.types import ObservedTrajectory, RobotPath
 from service.session.types import Friction
 from service.synth import noise as _noise
-from service.synth.camera import look_at
-from service.synth.generate import CAMERA_SIDES
+from service.synth.generate import scene_layout
 from service.synth.objects import make_object
 from service.synth.sim import EE_RADIUS, simulate
 from service.synth.types import SynthSpec
@@ -50,18 +49,7 @@ def lab_session(spec: SynthSpec, pose_noise_m: float = 5e-4, pose_noise_rad: flo
     ss = np.random.SeedSequence(int(spec.seed))
     rng_scene, rng_plan, rng_occ, rng_noise, rng_tex = (np.random.default_rng(s) for s in ss.spawn(5))
     obj = make_object(spec.object, spec.scale, spec.mass)
-    table_h = float(spec.table_height) if spec.table_height is not None else float(rng_scene.uniform(-0.05, 0.05))
-    start_xy = np.array([0.5 + rng_scene.uniform(-0.04, 0.04), rng_scene.uniform(-0.04, 0.04)])
-    start_yaw = float(rng_scene.uniform(-np.pi, np.pi))
-    dist = float(spec.camera_distance) if spec.camera_distance is not None else float(rng_scene.uniform(0.6, 0.9))
-    az = CAMERA_SIDES.get(spec.camera_side, 0.0) + rng_scene.uniform(-0.45, 0.45)
-    el = rng_scene.uniform(0.5, 0.8)
-    if spec.camera_side == "random":
-        az += float(rng_scene.choice([-np.pi / 2, 0.0, np.pi / 2]))
-    target = np.array([start_xy[0], start_xy[1], table_h + 0.45 * float(obj.extents[2])])
-    eye = target + dist * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-    X_WC = look_at(eye, target)
-    lateral = X_WC[:2, 0] / np.linalg.norm(X_WC[:2, 0])
+    table_h, start_xy, start_yaw, _, lateral = scene_layout(spec, obj, rng_scene)
     rec = simulate(
         obj, interaction=spec.interaction, table_h=table_h, start_xy=start_xy, start_yaw=start_yaw, lateral=lateral,
         n_frames=N, fps=fps, physics_hz=spec.physics_hz, mu_ot=spec.friction_object_table,
