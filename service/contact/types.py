@@ -109,6 +109,13 @@ class ContactConfig:
     physible_fraction: float = 0.3
     max_physible_points: int = 20000
 
+    def __post_init__(self):
+        if self.geometry not in ("dsf", "polytope"):
+            raise ValueError(f"ContactConfig.geometry must be 'dsf' or 'polytope', got {self.geometry!r}")
+        for name in ("w_pred", "w_comp", "w_diss", "w_pen", "w_vision", "w_realizable"):
+            if not float(getattr(self, name)) >= 0:
+                raise ValueError(f"ContactConfig.{name} must be a number >= 0, got {getattr(self, name)!r}")
+
     @classmethod
     def tosses(cls, **kw) -> "ContactConfig":
         """Preset for object-only trajectories (tosses): learnable polytope instead of the deep support function and

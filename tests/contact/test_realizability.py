@@ -47,3 +47,15 @@ def test_penalty_gradient_pulls_an_unrealizable_inertia_back():
     assert float(realizability_ratio(body, e, A).detach()) < 1.05
     I = body.central_inertia().detach().numpy()
     assert np.all(np.linalg.eigvalsh(I) > 0)
+
+
+def test_config_refuses_a_negative_realizability_weight_and_an_unknown_geometry():
+    import pytest
+
+    from service.contact.types import ContactConfig
+
+    with pytest.raises(ValueError, match="w_realizable"):
+        ContactConfig(w_realizable=-1.0)
+    with pytest.raises(ValueError, match="geometry"):
+        ContactConfig(geometry="sphere")
+    assert ContactConfig.tosses().w_realizable == 0.0
