@@ -132,6 +132,13 @@ class ResidualConfig:
     # true shape on tracked poses 3-5 %); learned models at 7-10 % still let a clock offset stand in for
     # their errors
     max_base_error_rel_learned: float = 0.05
+    # launch blocks (robot sessions): an impulsive start of motion from rest (a strike) gets a block of its own,
+    # from ``launch_lead`` frames before the onset to where the object has settled (see loop.launches)
+    launch_speed: float = 0.15  # m/s reached within 3 frames of the onset
+    launch_rest_speed: float = 0.05  # m/s, below this before the onset (and when settled)
+    launch_lead: int = 2  # frames of rest at the start of a launch block
+    launch_max_s: float = 1.0  # longest launch block, s
+    robot_smooth_s: float = 0.04  # Savitzky-Golay window on the measured sphere path before the rollouts, s (0: off)
 
     @classmethod
     def fast(cls) -> "ResidualConfig":

@@ -47,6 +47,13 @@ TABLE_CENTRE_XY = (0.5, 0.0)
 TABLE_HALF = (0.8, 0.8, 0.02)
 FAR_FROM_HOME = 0.2  # m; no more strokes once the object is this far from where it started
 HULL_MARGIN = 0.001  # Bullet's collision margin around convex-hull shapes (measured: rest height 0.99 mm)
+# strike (impulsive push): a stiffer, heavier end effector (a rigidly held arm's reflected mass; same bandwidth
+# sqrt(K/m) as the others), so that the object's launch follows the sphere's measured path
+STRIKE_EE_MASS = 10.0
+STRIKE_RUN_UP = 0.05  # m between the sphere and the object before a strike
+STRIKE_SPEED = (0.4, 0.7)  # m/s, commanded speed at the surface (random per strike)
+STRIKE_BRAKE = 0.01  # m of constant deceleration after the surface
+STRIKE_HOLD = 0.35  # s the sphere stays while the object slides
 
 
 def xyzw(q_wxyz: np.ndarray) -> list[float]:
@@ -101,7 +108,14 @@ class _Path:
         for t0, t1, a, b, prof in reversed(self.segs):
             if t >= t0:
                 tau = min(max((t - t0) / (t1 - t0), 0.0), 1.0)
-                s = tau if prof == "linear" else tau * tau * (3.0 - 2.0 * tau)
+                if prof == "linear":
+                    s = tau
+                elif prof == "accelerate":  # constant acceleration from rest, end speed 2 |b - a| / duration
+                    s = tau * tau
+                elif prof == "brake":  # constant deceleration to rest from speed 2 |b - a| / duration
+                    s = 1.0 - (1.0 - tau) ** 2
+                else:
+                    s = tau * tau * (3.0 - 2.0 * tau)
                 return a + (b - a) * s
         return (self.segs[0][2] if self.segs else self.p_end).copy()
 
@@ -153,8 +167,25 @@ class _Planner:
         a = self.rng.uniform(-0.15, 0.15)
         return np.array([np.cos(a) * d[0] - np.sin(a) * d[1], np.sin(a) * d[0] + np.cos(a) * d[1]])
 
+    def _strike_heading(self, X_WM: np.ndarray) -> np.ndarray:
+        """Strike heading: back towards home when the object is > 3 cm away (± 0.5 rad), else any direction
+        (the headings of a session cover the circle, so a tilted table shows as a heading-dependent slide)."""
+        c = X_WM[:2, 3]
+        to_home = self.home_xy - c
+        if self.strokes and np.linalg.norm(to_home) > 0.03:
+            a = float(np.arctan2(to_home[1], to_home[0]) + self.rng.uniform(-0.5, 0.5))
+        elif self.strokes:
+            prev = self.strokes[-1]["heading"]
+            a = float(np.arctan2(prev[1], prev[0]) + self.rng.uniform(0.6, 2.0) * self.rng.choice([-1.0, 1.0]))
+        else:
+            a = float(np.arctan2(self.lateral[1], self.lateral[0]) + self.rng.uniform(-np.pi, np.pi))
+        return np.array([np.cos(a), np.sin(a)])
+
     def plan(self, path: _Path, X_WM: np.ndarray, first: bool, initial_hold: float = 0.0) -> None:
         """Append one stroke (with its approach) to ``path``, starting at path.t_end."""
+        if self.interaction == "strike":
+            self._plan_strike(path, X_WM, first, initial_hold)
+            return
         kind = self.interaction if (first or self.interaction == "pivot") else "push"
         if kind == "topple" and any(s["kind"] == "topple" for s in self.strokes):
             kind = "push"
@@ -235,6 +266,66 @@ class _Planner:
         self.strokes.append(
             dict(kind=kind, heading=[float(d2[0]), float(d2[1])], contact_height=float(hc), t_start=float(t_contact), t_end=float(path.t_end), travel=float(travel))
         )
+
+    def _plan_strike(self, path: _Path, X_WM: np.ndarray, first: bool, initial_hold: float) -> None:
+        """An impulsive push: the sphere starts ``STRIKE_RUN_UP`` behind the object, accelerates at a constant
+        rate so that the command reaches the surface at a random speed in ``STRIKE_SPEED``, brakes to rest
+        within ``STRIKE_BRAKE`` m, holds while the object slides free and stops under friction, then backs off. The contact point is offset sideways by up to a third of the
+        object's half width (the object spins as it slides)."""
+        if not first and np.linalg.norm(X_WM[:2, 3] - self.home_xy) > FAR_FROM_HOME:
+            path.hold(self.duration - path.t_end + 1.0)
+            return
+        V = self.hull @ X_WM[:3, :3].T + X_WM[:3, 3]
+        top = float(V[:, 2].max())
+        H = top - self.table_h
+        c = X_WM[:3, 3]
+        d2 = self._strike_heading(X_WM)
+        d = np.array([d2[0], d2[1], 0.0])
+        n = np.array([-d2[1], d2[0], 0.0])
+        rel = V[:, :2] - c[:2]
+        s_back = float((rel @ -d2).max())
+        half_w = 0.5 * float(np.ptp(rel @ n[:2]))
+        r = EE_RADIUS
+        hc = float(np.clip(0.3 * H, r + 0.003, max(H - 0.6 * r, r + 0.003)))
+        z = self.table_h + hc
+        side = float(self.rng.uniform(-1.0, 1.0)) * min(half_w / 3.0, max(half_w - r, 0.0))
+        v_hit = float(self.rng.uniform(*STRIKE_SPEED))
+        start = np.array([c[0], c[1], z]) - d * (s_back + r + STRIKE_RUN_UP) + n * side
+        hit = self._surface_distance(V, start, d)
+        approach = (hit - r) if hit is not None else STRIKE_RUN_UP
+        if path.p_end is None:
+            path.p_end = start
+            path.hold(initial_hold)
+        if np.linalg.norm(path.p_end - start) > 0.005:
+            # reposition around the object at the contact height, on a circle clear of it (radius: the farthest
+            # hull point + the sphere + 1.5 cm), the short way round, at ~0.5 m/s
+            p = path.p_end
+            R_clear = float(np.linalg.norm(rel, axis=1).max()) + r + 0.015
+            a0 = float(np.arctan2(p[1] - c[1], p[0] - c[0]))
+            a1 = float(np.arctan2(start[1] - c[1], start[0] - c[0]))
+            da = (a1 - a0 + np.pi) % (2 * np.pi) - np.pi
+            R = max(R_clear, float(np.hypot(p[0] - c[0], p[1] - c[1])))
+            out = np.array([c[0] + R * np.cos(a0), c[1] + R * np.sin(a0), z])
+            path.move(out, 0.1 + 1.5 * float(np.linalg.norm(out - p)) / 0.5)
+            n_arc = max(2, int(np.ceil(abs(da) / 0.4)))
+            for k in range(1, n_arc + 1):
+                a = a0 + da * k / n_arc
+                q = np.array([c[0] + R * np.cos(a), c[1] + R * np.sin(a), z])
+                path.move(q, float(np.linalg.norm(q - path.p_end)) / 0.5, "linear")
+            path.move(start, 0.1 + 1.5 * float(np.linalg.norm(start - path.p_end)) / 0.5)
+            path.hold(0.15)
+        t_contact = path.t_end
+        # the sphere lags the command by 2 v / sqrt(K/m) on a ramp: the command reaches 0.6 of that lag beyond the
+        # surface at v_hit and stops STRIKE_BRAKE further; the sphere hits a little slower and comes to rest
+        # there, while the object slides on free
+        L = approach + 0.6 * 2.0 * np.sqrt(STRIKE_EE_MASS / (EE_STIFFNESS * STRIKE_EE_MASS / EE_MASS)) * v_hit
+        path.move(start + d * L, 2.0 * L / v_hit, "accelerate")
+        path.move(path.p_end + d * STRIKE_BRAKE, 2.0 * STRIKE_BRAKE / v_hit, "brake")
+        path.hold(STRIKE_HOLD)
+        path.move(path.p_end - d * 0.02, 0.2)
+        self.strokes.append(dict(kind="strike", heading=[float(d2[0]), float(d2[1])], contact_height=hc,
+                                 t_start=float(t_contact), t_end=float(path.t_end), travel=float(STRIKE_BRAKE),
+                                 speed=v_hit, offset=side))
 
     @staticmethod
     def _surface_distance(V: np.ndarray, start: np.ndarray, d: np.ndarray) -> float | None:
@@ -353,7 +444,11 @@ def simulate(
 
         # end-effector sphere
         scol = pb.createCollisionShape(pb.GEOM_SPHERE, radius=EE_RADIUS - HULL_MARGIN, physicsClientId=cid)
-        sphere = pb.createMultiBody(EE_MASS, scol, -1, [start_xy[0], start_xy[1], table_h + 0.6], physicsClientId=cid)
+        # the strike's arm is heavier and as stiff per kg (same bandwidth); the other interactions keep EE_MASS
+        ee_mass = STRIKE_EE_MASS if interaction == "strike" else EE_MASS
+        ee_k = EE_STIFFNESS * ee_mass / EE_MASS
+        ee_d = 2.0 * np.sqrt(ee_k * ee_mass) if interaction == "strike" else EE_DAMPING
+        sphere = pb.createMultiBody(ee_mass, scol, -1, [start_xy[0], start_xy[1], table_h + 0.6], physicsClientId=cid)
         pb.changeDynamics(sphere, -1, lateralFriction=mu_or, restitution=1.0, rollingFriction=0.0, spinningFriction=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
         pb.setCollisionFilterPair(sphere, table, -1, -1, 0, physicsClientId=cid)
 
@@ -366,7 +461,7 @@ def simulate(
         def step_robot(cmd: np.ndarray) -> None:
             x, _ = pb.getBasePositionAndOrientation(sphere, physicsClientId=cid)
             v, _ = pb.getBaseVelocity(sphere, physicsClientId=cid)
-            F = EE_STIFFNESS * (cmd - np.asarray(x)) - EE_DAMPING * np.asarray(v) - EE_MASS * g
+            F = ee_k * (cmd - np.asarray(x)) - ee_d * np.asarray(v) - ee_mass * g
             pb.applyExternalForce(sphere, -1, F.tolist(), list(x), pb.WORLD_FRAME, physicsClientId=cid)
             pb.resetBaseVelocity(sphere, angularVelocity=[0.0, 0.0, 0.0], physicsClientId=cid)
             if damped:  # hidden viscous damping as explicit forces (Bullet's own damping is off)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-INTERACTIONS: tuple[str, ...] = ("push", "pivot", "topple")
+INTERACTIONS: tuple[str, ...] = ("push", "pivot", "topple", "strike")
 OCCLUSION_LEVELS: dict[str, float] = {"none": 0.0, "light": 0.25, "heavy": 0.55}
 
 
@@ -102,7 +102,7 @@ class SynthSpec:
     """Everything that determines a synthetic session; the same spec gives byte-identical files."""
 
     object: str = "baking_box"  # one of service.synth.OBJECT_KINDS
-    interaction: str = "push"  # push | pivot | topple
+    interaction: str = "push"  # push | pivot | topple | strike (impulsive pushes: the object slides free)
     seed: int = 0
     preset: str = "tiny"  # tiny | small | full
     occlusion: str | float = "none"  # none | light | heavy, or a target hidden fraction in [0, 0.8]
