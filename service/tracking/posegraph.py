@@ -93,6 +93,9 @@ def bundle_adjust(
         PO = [p @ x[:3, :3].T + x[:3, 3] for p, x in zip(P, X)]
         NO = [n @ x[:3, :3].T for n, x in zip(Nn, X)]
         trees = [cKDTree(p) if len(p) else None for p in PO]
+        # axis-aligned boxes in O: a pair whose boxes are farther apart than thr has no correspondence (exact skip)
+        lo = np.array([p.min(0) if len(p) else np.full(3, np.inf) for p in PO])
+        hi = np.array([p.max(0) if len(p) else np.full(3, -np.inf) for p in PO])
         D = 6 * K
         H = np.zeros((D, D))
         g = np.zeros(D)
@@ -103,6 +106,8 @@ def bundle_adjust(
                 continue
             for b in range(K):
                 if b == a or not len(PO[b]):
+                    continue
+                if np.any(lo[b] > hi[a] + thr) or np.any(lo[a] > hi[b] + thr):
                     continue
                 d, j = trees[a].query(PO[b], distance_upper_bound=thr)
                 ok = np.isfinite(d)

@@ -238,6 +238,7 @@ class TrackResult:
     model: ObjectModel
     keyframes: list[Keyframe]
     carver: FreeSpace | None = None
+    kf_log: list[dict] = field(default_factory=list)  # per keyframe candidate: index, far, new_frac, added, accepted
 
 
 def track(session, cfg: TrackingConfig, progress: Progress = None) -> TrackResult:
@@ -288,6 +289,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         carver.add(0, session.depth(0), X[0])
     model = ObjectModel.build(cfg.model_voxel, [(kf0.P_O, o0.N_W[keep] @ X_OW0[:3, :3].T)])
     last = [0]  # indices of tracked frames
+    kf_log: list[dict] = []
 
     icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist)
     for i in range(1, N):
@@ -341,13 +343,23 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             near = best.nn_dist < cfg.grow_dist
             X_OW = X_inv(X[i])
             consistent = True
+            st_all = np.zeros(len(near), bool)
             if carver is not None and near.any():
                 st = carver.seen_through(o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3])
                 consistent = st.mean() <= cfg.carve_frame_frac
+                st_all[near] = st
                 near[near] &= ~st
-            kf = Keyframe(i, X[i].copy(), o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W[near], o.N_W[near],
-                          o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W)
-            if consistent:
+            addable = float(np.mean((best.nn_dist > cfg.inlier_dist) & near))
+            # a keyframe taken for new surface must add some: points farther than grow_dist (a part of the object
+            # split off by an occluder, clutter) or seen through are never added, so counting them alone would make
+            # every following frame a keyframe with nothing new (prism push, seed 12: 213 keyframes, 8 min)
+            adds = far or addable >= cfg.kf_min_new_add
+            kf_log.append(dict(index=i, far=bool(far), new_frac=new_frac, addable=addable, n=len(o.P_W),
+                               added=int(near.sum()), beyond=int((best.nn_dist >= cfg.grow_dist).sum()),
+                               seen=int(st_all.sum()), accepted=bool(consistent and adds)))
+            if consistent and adds:
+                kf = Keyframe(i, X[i].copy(), o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W[near], o.N_W[near],
+                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W)
                 keyframes.append(kf)
                 if carver is not None:
                     carver.add(i, session.depth(i), X[i])
@@ -391,7 +403,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             o0 = observe(session, 0, _replace(cfg, max_points=cfg.regauge_points), rng)  # dense: one frame sets O
             model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw)
     X = interpolate_untracked(X, tracked)
-    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver)
+    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log)
 
 
 def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], carver: "FreeSpace | None",

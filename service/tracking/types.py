@@ -65,7 +65,9 @@ class TrackingConfig:
     model_voxel: float = 0.003  # voxel of the accumulated keyframe point model
     kf_angle_deg: float = 10.0  # new keyframe when this far (or kf_dist) from every keyframe
     kf_dist: float = 0.03
-    kf_new_frac: float = 0.15  # ... or when this fraction of points lies off the model
+    kf_new_frac: float = 0.15  # ... or when this fraction of points lies off the model (farther than inlier_dist)
+    kf_min_new_add: float = 0.02  # ... and at least this fraction are off-model points it adds (within grow_dist,
+    # not seen through); without it, points that are never added keep the trigger on in every frame
     kf_min_inlier_frac: float = 0.5
     grow_dist: float = 0.015  # points farther than this from the model are not added (mask noise)
     refine_rounds: int = 2  # leave-one-out keyframe refinement rounds after the bundle adjustment (0: off)
