@@ -302,7 +302,7 @@ register(Effect(
     _com_sig, _com_guess, _com_apply,
     description="centre-of-mass shift in O, m (where the CoM was held fixed)",
     resolution=(0.002,) * 3,
-    modes=("sliding", "rest", "robot_contact"),
+    modes=("sliding", "robot_contact"),  # a resting object's pose does not depend on it
 ))
 register(Effect(
     "clock_offset", ("clock_offset",), (-0.2,), (0.2,), (0.0,), _clock_sig, _clock_guess,
