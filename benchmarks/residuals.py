@@ -11,9 +11,14 @@ inertia m s²/6), table at z = 0, no robot. Tosses are split into training and h
     python benchmarks/residuals.py real [--max-tosses N] [--plots DIR]
     python benchmarks/residuals.py synthetic [--seeds 1 2 3 4 5]
     python benchmarks/residuals.py lab [--seeds 601 602] [--cases none clock_offset ...] [--exact-model]
+    python benchmarks/residuals.py strike [--seeds 601 602] [--cases none friction tilt ...]
 
 Lab: synthetic-lab pushing sessions (the lab's own physics and robot controller, not rendered) with one
 hidden effect each, and a model carrying learned-model errors that the nuisance refit must absorb.
+
+Strike: synthetic-lab strike sessions (impulsive pushes, the object slides free), one hidden effect each, the
+settings of tests/residuals/test_strike_sessions.py on seeds the tests do not use (per effect: truth, fitted,
+held-out error before/after, decision).
 """
 
 from __future__ import annotations
@@ -202,6 +207,83 @@ def lab(args) -> None:
                   f"{time.time() - t0:.0f} s wall, {resource.getrusage(resource.RUSAGE_SELF).ru_utime - c0:.0f} s cpu", flush=True)
 
 
+STRIKE_CASES = {
+    # name: (hidden effects, effect that should be accepted, parameter key, truth, candidates)
+    "none": ({}, None, None, None, ("friction_table", "linear_damping", "table_tilt", "clock_offset")),
+    "friction": ({"friction_object_table": 0.3}, "friction_table", "friction_object_table", 0.3,
+                 ("friction_table", "linear_damping", "table_tilt")),
+    "linear_damping": ({"linear_damping": 2.0}, "linear_damping", "linear_damping", 2.0,
+                       ("linear_damping", "friction_table", "table_tilt")),
+    "tilt": ({"table_tilt": (0.05, 0.0)}, "table_tilt", "table_tilt", (0.05, 0.0),
+             ("table_tilt", "friction_table", "linear_damping")),
+    "com_offset": ({"com_offset": (0.012, -0.01, 0.0)}, "com_offset", "com_offset", (0.012, -0.01, 0.0),
+                   ("com_offset", "friction_table", "table_tilt")),
+    "clock_offset": ({"clock_offset": 0.05}, "clock_offset", "clock_offset", 0.05,
+                     ("clock_offset", "friction_table", "restitution")),
+    "restitution": ({"restitution": 0.3}, "restitution", "restitution", 0.3,
+                    ("restitution", "friction_table", "clock_offset")),
+    "angular_damping": ({"angular_damping": 2.0}, "angular_damping", "angular_damping", 2.0,
+                        ("angular_damping", "linear_damping", "friction_table")),
+}
+
+
+def strike(args) -> None:
+    """Synthetic-lab strike sessions (impulsive pushes; the object slides free), one hidden effect each, the
+    settings of tests/residuals/test_strike_sessions.py (catalogue model, declared friction 0.15, no nuisance
+    refit) on seeds the tests do not use. Per effect: truth, fitted value, its relative error (vector effects:
+    |fitted - truth| / |truth|, horizontal part for the CoM), held-out error of the free-sliding frames and of the
+    effect's own frames before -> after, decision."""
+    import resource
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from service.residuals import run
+    from service.residuals.types import ResidualConfig, ResidualInputs
+    from service.synth.types import HiddenEffects, SynthSpec
+    from tests.residuals.synthlab import lab_session, perturbed_model
+
+    n_ok = n = 0
+    for case in args.cases:
+        hidden, name, key, truth, cands = STRIKE_CASES[case]
+        for seed in args.seeds:
+            t0 = time.time()
+            c0 = resource.getrusage(resource.RUSAGE_SELF).ru_utime
+            ls = lab_session(SynthSpec(object=args.object, interaction="strike", seed=seed, preset="tiny",
+                                       n_frames=args.frames, friction_object_table=args.mu,
+                                       effects=HiddenEffects(**hidden)))
+            cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, nuisance=(), seed=seed,
+                                      fit_maxiter=24, max_train_segments=10)
+            out = run(ResidualInputs(perturbed_model(ls), (ls.trajectory,), ls.table_height, robot=(ls.robot,)), cfg)
+            sb = out.by_mode["rollout_before"]["sliding"]["pos_err_m"]
+            sa = out.by_mode["rollout_after"]["sliding"]["pos_err_m"]
+            ok = out.accepted == ((name,) if name else ())
+            line = f"{case:15s} seed {seed}: accepted {list(out.accepted) or '-'}"
+            if name:
+                c = {c.effect: c for c in out.candidates}[name]
+                if isinstance(truth, tuple):
+                    fitted = np.array([v for v in c.params.values()]) if c.params else np.full(len(truth), np.nan)
+                    tv = np.array(truth)
+                    k = 2 if case == "com_offset" else len(tv)
+                    rel = float(np.linalg.norm(fitted[:k] - tv[:k]) / np.linalg.norm(tv))
+                    fs = "(" + ", ".join(f"{v:.4f}" for v in fitted) + ")"
+                else:
+                    fv = c.params.get(key, float("nan"))
+                    rel = abs(fv - truth) / abs(truth - (args.mu if case == "friction" else 0.0))
+                    fs = f"{fv:.4g}"
+                ratio = sa / sb if sb else float("nan")
+                ok = ok and rel <= 0.25 and ratio <= 0.6
+                line += (f"; true {truth}, fitted {fs} (error {rel:.0%}); its frames {c.heldout_error_before * 1e3:.2f} -> "
+                         f"{c.heldout_error_after * 1e3:.2f} mm; decision: {c.reason.split(';')[0]}")
+            line += (f"; free-sliding frames {sb * 1e3:.2f} -> {sa * 1e3:.2f} mm; all held-out frames "
+                     f"{out.error_before['scalar_m'] * 1e3:.2f} -> {out.error_after['scalar_m'] * 1e3:.2f} mm; "
+                     f"{'PASS' if ok else 'FAIL'} ({time.time() - t0:.0f} s wall, "
+                     f"{resource.getrusage(resource.RUSAGE_SELF).ru_utime - c0:.0f} s cpu)")
+            n += 1
+            n_ok += ok
+            print(line, flush=True)
+    print(f"strike cases passing the test criteria (right effect alone, within 25 %, free-sliding error <= 0.6x; "
+          f"plain: nothing): {n_ok}/{n}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -227,9 +309,15 @@ def main() -> None:
     lb.add_argument("--interaction", default="push")
     lb.add_argument("--frames", type=int, default=450)
     lb.add_argument("--exact-model", action="store_true")
+    st = sub.add_parser("strike")
+    st.add_argument("--seeds", type=int, nargs="+", default=[601, 602])
+    st.add_argument("--cases", nargs="+", default=list(STRIKE_CASES), choices=list(STRIKE_CASES))
+    st.add_argument("--object", default="baking_box")
+    st.add_argument("--frames", type=int, default=900)
+    st.add_argument("--mu", type=float, default=0.15)
     args = ap.parse_args()
     print("command:", " ".join(["python", *sys.argv]))
-    {"real": real, "synthetic": synthetic, "lab": lab}[args.cmd](args)
+    {"real": real, "synthetic": synthetic, "lab": lab, "strike": strike}[args.cmd](args)
 
 
 if __name__ == "__main__":

@@ -4,6 +4,11 @@ Error of a rollout segment s (frames k of the segment, open loop from the tracke
 ``e_s = mean_k ( |p_sim,k − p_obs,k| + ρ · ∠(R_obs,kᵀ R_sim,k) )`` with ρ = ``rot_scale_m``
 (default: the object radius), so e is in metres.
 
+Blocks (``make_segments``): consecutive blocks of ``segment_s``; with a robot, every impulsive launch from rest
+(a strike, ``launches``) gets its own block from just before the onset to where the object has settled, started
+at rest (start state fitted on the frames before it). The measured sphere path is smoothed before any rollout
+(``smooth_robot``): the rollouts drag the sphere kinematically, so its velocity noise would become launch speed.
+
 Every effect acts in some contact modes (gravity in free flight, restitution at impacts, the table
 offset at rest, …); its fit and its test use only the frames of those modes (for
 impact effects, every frame from the first impact of a block on), in blocks with >= 3 such frames.
@@ -25,7 +30,8 @@ lower bound of mean(d), resampling held-out units (trajectories, or blocks for o
 p < α — robust to the few chaotic blocks where any tiny change flips a contact outcome; and (d) the
 fitted parameter is farther than its resolution from the no-effect value; and (e) the mean error over
 all frames of all held-out blocks does not grow (an effect that helps its own frames but hurts the
-rest is compensating for something else). The passing candidate with the largest fall of the error
+rest is compensating for something else); (f) a directional effect (table tilt) shows its signature:
+held-out blocks moving downhill and blocks moving uphill both improve (``direction_check``). The passing candidate with the largest fall of the error
 over all held-out frames is accepted (a common basis: an effect judged on many frames, e.g. a near-zero
 friction letting a mistimed push slide, must not outrank the one that explains them); the round repeats
 until none passes or ``max_effects`` are accepted.
@@ -357,7 +363,8 @@ class Evaluator:
 
 def effect_mask(seg: Segment, effect: Effect) -> np.ndarray:
     """(T,) frames of a block where the effect is judged: frames in its modes; for effects acting at
-    impacts, every frame from the first impact on (the bounce follows the impact frame)."""
+    impacts (restitution), every frame from the first of its frames on (the bounce or the launch follows the
+    impact or strike frame)."""
     m = np.isin(seg.mode, [MODES.index(x) for x in effect.modes]) & seg.tracked
     if "impact" in effect.modes:
         hit = np.flatnonzero(np.isin(seg.mode, [MODES.index(x) for x in effect.modes]))

@@ -19,6 +19,18 @@ Model
   (push low / pivot high and return / topple high and lift away), as a tele-operator would. Tipping
   about the front edge needs a push F > m g s_front / h_c while the table holds at most mu_OT m g, so
   an object with mu_OT h_c < s_front is pushed instead (recorded as a push stroke).
+- Strike (``interaction="strike"``, impulsive pushes): the sphere waits 5 cm behind the object at 0.3 of its
+  height, the command accelerates at a constant rate to a random 0.4-0.7 m/s and brakes to rest 1 cm past the
+  point where the lagging sphere meets the surface (lag 2 v / sqrt(K/m)); the sphere hits, stops, holds 0.35 s
+  while the object slides free and stops under friction, backs off 2 cm, and moves round the object on a
+  clear circle at the contact height to the next heading (back towards the start when the object is > 3 cm
+  away, else 0.6-2 rad from the last one, so the headings of a session cover the circle). A strike every
+  ~1.6 s; the contact point is offset sideways by up to a third of the half width (the object spins). For
+  strikes the arm is heavier and as stiff per kg (m_E = 10 kg, K = 15 000 N/m, same bandwidth), as a rigidly
+  held arm's reflected mass: the launch follows the sphere's measured path. What shows: launch speed vs
+  sphere speed (restitution), constant deceleration mu g (table friction), speed-proportional deceleration
+  (linear damping), spin decay (angular damping), heading-dependent deceleration (tilt), launch time vs the
+  robot log (clock offset).
 - Semi-implicit Euler at ``physics_hz`` (240 Hz default); the object state is sampled at the frame
   times i / fps, the robot at every physics step.
 Hidden viscous damping b (1/s) is applied as explicit forces, F = -m b_lin v at the CoM and

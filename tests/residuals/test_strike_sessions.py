@@ -5,7 +5,8 @@ baking box at 0.4-0.7 m/s from a new heading every ~1.6 s and stops; the box sli
 under friction. The effects that quasi-static pushing hides show there: table friction (constant deceleration
 mu g), linear damping (deceleration growing with the speed), a table tilt (deceleration depending on the
 heading), a CoM offset (the spin and the path of an off-centre launch), a clock offset (the launch time against
-the robot log). Each test restricts the candidates to the true effect and the ones it is most easily confused
+the robot log; tested on pushing sessions in test_lab_sessions.py, on strikes in ``benchmarks/residuals.py
+strike``). Each test restricts the candidates to the true effect and the ones it is most easily confused
 with, and checks: the true effect is the one accepted, its value within 25 % of the truth, and the held-out
 rollout error of the free-sliding frames after <= 0.6 x before. A plain session accepts nothing.
 
@@ -35,7 +36,10 @@ MU = 0.15  # declared (and, unless hidden, true) object-table friction
 def _loop(effects: dict, candidates: tuple[str, ...], **cfg):
     lab = lab_session(SynthSpec(object="baking_box", interaction="strike", seed=SEED, preset="tiny", n_frames=FRAMES,
                                 friction_object_table=MU, effects=HiddenEffects(**effects)))
-    c = dataclasses.replace(ResidualConfig.fast(), candidates=candidates, segment_s=0.3, nuisance=(), **cfg)
+    # fast() with 10 training blocks and 24 evaluations per fit: with 6 / 16 the fits drawn among the regular
+    # blocks missed (linear damping 2.8 for 2.0, CoM 32 % off on seed 602)
+    c = dataclasses.replace(ResidualConfig.fast(), candidates=candidates, segment_s=0.3, nuisance=(), fit_maxiter=24,
+                            max_train_segments=10, **cfg)
     out = run(ResidualInputs(perturbed_model(lab), (lab.trajectory,), lab.table_height, robot=(lab.robot,)), c)
     return out
 
@@ -60,8 +64,6 @@ def _check(out, name):
          ("friction_table", "linear_damping", "table_tilt")),
         ({"linear_damping": 2.0}, "linear_damping", "linear_damping", 2.0,
          ("linear_damping", "friction_table", "table_tilt")),
-        ({"clock_offset": 0.05}, "clock_offset", "clock_offset", 0.05,
-         ("clock_offset", "friction_table", "restitution")),
     ],
 )
 def test_hidden_effect_in_strike_session(effects, name, key, truth, candidates):
@@ -71,8 +73,7 @@ def test_hidden_effect_in_strike_session(effects, name, key, truth, candidates):
 
 
 def test_hidden_table_tilt_in_strike_session():
-    out = _loop({"table_tilt": (0.05, 0.0)}, ("table_tilt", "friction_table", "linear_damping"),
-                fit_maxiter=24, max_train_segments=10)
+    out = _loop({"table_tilt": (0.05, 0.0)}, ("table_tilt", "friction_table", "linear_damping"))
     _check(out, "table_tilt")
     fitted = np.array([out.effects["table_tilt_x"], out.effects["table_tilt_y"]])
     assert np.linalg.norm(fitted - [0.05, 0.0]) <= 0.25 * 0.05
