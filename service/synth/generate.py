@@ -30,7 +30,7 @@ from service.synth import noise as _noise
 from service.synth.camera import intrinsics, look_at
 from service.synth.objects import KINDS, OBJECT_KINDS, make_object
 from service.synth.render import Renderer, calibrate_occluder, hidden_fraction
-from service.synth.sim import EE_DAMPING, EE_MASS, EE_RADIUS, EE_STIFFNESS, simulate
+from service.synth.sim import EE_RADIUS, controller, simulate
 from service.synth.types import INTERACTIONS, OCCLUSION_LEVELS, PRESETS, HiddenEffects, SynthResult, SynthSpec
 from service.transforms import mat_to_quat, rotation_angle
 
@@ -226,7 +226,7 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
         },
         "declared": {"mass": session["object"]["mass"], "table_height": session["table"]["height"], "friction": session["friction"]},
         "object": {"kind": obj.kind, "scale": spec.scale, "description": KINDS[obj.kind].description, "convex": obj.convex, "extents": obj.extents.tolist(), "volume": float(obj.mesh.volume)},
-        "robot_controller": {"law": "F = K (x_cmd - x) - D v + gravity compensation", "stiffness": EE_STIFFNESS, "damping": EE_DAMPING, "mass": EE_MASS, "physics_hz": spec.physics_hz},
+        "robot_controller": {"law": "F = K (x_cmd - x) - D v + gravity compensation", "stiffness": controller(spec.interaction)[1], "damping": controller(spec.interaction)[2], "mass": controller(spec.interaction)[0], "physics_hz": spec.physics_hz},
         "strokes": list(rec.strokes),
         "occlusion": {
             "target": target_occ,

@@ -68,6 +68,15 @@ STRIKE_BRAKE = 0.01  # m of constant deceleration after the surface
 STRIKE_HOLD = 0.35  # s the sphere stays while the object slides
 
 
+def controller(interaction: str) -> tuple[float, float, float]:
+    """(mass kg, stiffness N/m, damping N s/m) of the end effector's impedance law for an interaction: the strike's
+    arm is heavier and as stiff per kg (same bandwidth sqrt(K/m)); the others use EE_MASS / EE_STIFFNESS / EE_DAMPING."""
+    if interaction == "strike":
+        k = EE_STIFFNESS * STRIKE_EE_MASS / EE_MASS
+        return STRIKE_EE_MASS, k, float(2.0 * np.sqrt(k * STRIKE_EE_MASS))
+    return EE_MASS, EE_STIFFNESS, EE_DAMPING
+
+
 def xyzw(q_wxyz: np.ndarray) -> list[float]:
     return [float(q_wxyz[1]), float(q_wxyz[2]), float(q_wxyz[3]), float(q_wxyz[0])]
 
@@ -330,7 +339,8 @@ class _Planner:
         # the sphere lags the command by 2 v / sqrt(K/m) on a ramp: the command reaches 0.6 of that lag beyond the
         # surface at v_hit and stops STRIKE_BRAKE further; the sphere hits a little slower and comes to rest
         # there, while the object slides on free
-        L = approach + 0.6 * 2.0 * np.sqrt(STRIKE_EE_MASS / (EE_STIFFNESS * STRIKE_EE_MASS / EE_MASS)) * v_hit
+        m_e, k_e, _ = controller("strike")
+        L = approach + 0.6 * 2.0 * np.sqrt(m_e / k_e) * v_hit
         path.move(start + d * L, 2.0 * L / v_hit, "accelerate")
         path.move(path.p_end + d * STRIKE_BRAKE, 2.0 * STRIKE_BRAKE / v_hit, "brake")
         path.hold(STRIKE_HOLD)
@@ -457,9 +467,7 @@ def simulate(
         # end-effector sphere
         scol = pb.createCollisionShape(pb.GEOM_SPHERE, radius=EE_RADIUS - HULL_MARGIN, physicsClientId=cid)
         # the strike's arm is heavier and as stiff per kg (same bandwidth); the other interactions keep EE_MASS
-        ee_mass = STRIKE_EE_MASS if interaction == "strike" else EE_MASS
-        ee_k = EE_STIFFNESS * ee_mass / EE_MASS
-        ee_d = 2.0 * np.sqrt(ee_k * ee_mass) if interaction == "strike" else EE_DAMPING
+        ee_mass, ee_k, ee_d = controller(interaction)
         sphere = pb.createMultiBody(ee_mass, scol, -1, [start_xy[0], start_xy[1], table_h + 0.6], physicsClientId=cid)
         pb.changeDynamics(sphere, -1, lateralFriction=mu_or, restitution=1.0, rollingFriction=0.0, spinningFriction=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
         pb.setCollisionFilterPair(sphere, table, -1, -1, 0, physicsClientId=cid)
