@@ -237,6 +237,7 @@ def strike(args) -> None:
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from service.residuals import run
+    from service.residuals.effects import NUISANCE_LEARNED
     from service.residuals.types import ResidualConfig, ResidualInputs
     from service.synth.types import HiddenEffects, SynthSpec
     from tests.residuals.synthlab import lab_session, perturbed_model
@@ -250,9 +251,12 @@ def strike(args) -> None:
             ls = lab_session(SynthSpec(object=args.object, interaction="strike", seed=seed, preset="tiny",
                                        n_frames=args.frames, friction_object_table=args.mu,
                                        effects=HiddenEffects(**hidden)))
-            cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, nuisance=(), seed=seed,
-                                      fit_maxiter=24, max_train_segments=10)
-            out = run(ResidualInputs(perturbed_model(ls), (ls.trajectory,), ls.table_height, robot=(ls.robot,)), cfg)
+            cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, seed=seed,
+                                      fit_maxiter=24, max_train_segments=10,
+                                      nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70)
+            model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
+                if args.learned_model else perturbed_model(ls)
+            out = run(ResidualInputs(model, (ls.trajectory,), ls.table_height, robot=(ls.robot,)), cfg)
             sb = out.by_mode["rollout_before"]["sliding"]["pos_err_m"]
             sa = out.by_mode["rollout_after"]["sliding"]["pos_err_m"]
             ok = out.accepted == ((name,) if name else ())
@@ -273,6 +277,9 @@ def strike(args) -> None:
                 ok = ok and rel <= 0.25 and ratio <= 0.6
                 line += (f"; true {truth}, fitted {fs} (error {rel:.0%}); its frames {c.heldout_error_before * 1e3:.2f} -> "
                          f"{c.heldout_error_after * 1e3:.2f} mm; decision: {c.reason.split(';')[0]}")
+            if args.learned_model:
+                line += (f"; corrected model {out.by_mode['error_corrected']['scalar_m'] * 1e3:.2f} mm, corrections "
+                         f"{ {k: round(v, 3) for k, v in out.corrections.items()} }")
             line += (f"; free-sliding frames {sb * 1e3:.2f} -> {sa * 1e3:.2f} mm; all held-out frames "
                      f"{out.error_before['scalar_m'] * 1e3:.2f} -> {out.error_after['scalar_m'] * 1e3:.2f} mm; "
                      f"{'PASS' if ok else 'FAIL'} ({time.time() - t0:.0f} s wall, "
@@ -315,6 +322,8 @@ def main() -> None:
     st.add_argument("--object", default="baking_box")
     st.add_argument("--frames", type=int, default=900)
     st.add_argument("--mu", type=float, default=0.15)
+    st.add_argument("--learned-model", action="store_true",
+                    help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
     args = ap.parse_args()
     print("command:", " ".join(["python", *sys.argv]))
     {"real": real, "synthetic": synthetic, "lab": lab, "strike": strike}[args.cmd](args)
