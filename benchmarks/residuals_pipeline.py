@@ -8,7 +8,12 @@ error (all frames) of the learned model -> corrected model -> corrected model + 
 error of the true effect's candidate on its own held-out frames before -> after.
 
     python benchmarks/residuals_pipeline.py [--preset small] [--frames N] [--seed 21] [--object milk_carton]
-        [--interaction push] [--cases none clock_offset ...] [--work DIR] [--diagnose [--loop-on-tracked]]
+        [--interaction push|strike] [--mu 0.15] [--residual-config JSON] [--cases none clock_offset ...]
+        [--work DIR] [--diagnose [--loop-on-tracked]]
+
+``--interaction strike``: impulsive pushes, the object slides free (baking box by default, declared table
+friction 0.15, the hidden values of ``benchmarks/residuals.py strike``; cases none, friction_object_table,
+linear_damping, table_tilt, clock_offset, com_offset).
 
 ``--frames`` lengthens the recording (same resolution and frame rate as the preset): a 5 s session holds
 one or two strokes, too few held-out blocks in robot contact for any test.
@@ -31,6 +36,17 @@ CASES = {
     "linear_damping": {"linear_damping": 3.0},
     "restitution": {"restitution": 0.5},
 }
+# strike sessions (impulsive pushes, free slides): the values of benchmarks/residuals.py strike, declared
+# object-table friction 0.15 (STRIKE_MU), as there and in tests/residuals/test_strike_sessions.py
+STRIKE_CASES = {
+    "none": {},
+    "friction_object_table": {"friction_object_table": 0.3},
+    "clock_offset": {"clock_offset": 0.05},
+    "table_tilt": {"table_tilt": (0.05, 0.0)},
+    "linear_damping": {"linear_damping": 2.0},
+    "com_offset": {"com_offset": (0.012, -0.010, 0.0)},
+}
+STRIKE_MU = 0.15
 # the loop's candidate that should explain each hidden effect, and its parameter key
 EXPECTED = {
     "friction_object_table": ("friction_table", "friction_object_table"),
@@ -38,6 +54,7 @@ EXPECTED = {
     "table_tilt": ("table_tilt", "table_tilt_x"),
     "linear_damping": ("linear_damping", "linear_damping"),
     "restitution": ("restitution", "restitution"),
+    "com_offset": ("com_offset", "com_offset_x"),
 }
 
 
@@ -92,6 +109,38 @@ def diagnose(bundle_dir: Path, session_dir: Path, segment_s: float = 0.3, loop_o
     dr = np.degrees(rotation_angle(np.swapaxes(tr.X_WO[ok, :3, :3], 1, 2) @ gt_O[ok, :3, :3]))
     print(f"  diagnose: tracked {ok.sum()}/{len(ok)} frames, pose error median {np.median(dp) * 1e3:.1f} mm / "
           f"{np.median(dr):.2f} deg (frame offset removed)")
+    # the same split by the true speed (strikes: does tracking keep up with a sliding object?), and the peak
+    # speed of each launch, tracked vs true
+    t_all = np.asarray(tr.t, float)
+    p_true = gt_O[:, :3, 3]
+    sp = np.zeros(len(t_all))
+    sp[1:-1] = np.linalg.norm(p_true[2:] - p_true[:-2], axis=1) / (t_all[2:] - t_all[:-2])
+    sp_ok = sp[ok]
+    for lo, hi in ((0.0, 0.02), (0.02, 0.2), (0.2, 10.0)):
+        m = (sp_ok >= lo) & (sp_ok < hi)
+        if m.any():
+            print(f"  diagnose: true speed {lo:.2f}-{hi:.2f} m/s: {m.sum()} tracked frames, position error median "
+                  f"{np.median(dp[m]) * 1e3:.1f} mm (p90 {np.percentile(dp[m], 90) * 1e3:.1f}), rotation median "
+                  f"{np.median(dr[m]):.2f} deg (p90 {np.percentile(dr[m], 90):.2f})")
+    n_miss_fast = int(((~ok) & (sp > 0.02)).sum())
+    p_tr = np.where(ok[:, None], tr.X_WO[:, :3, 3], np.nan)
+    u_tr = np.full(len(t_all), np.nan)
+    u_tr[1:] = np.linalg.norm(np.diff(p_tr, axis=0), axis=1) / np.diff(t_all)
+    u_gt = np.zeros(len(t_all))
+    u_gt[1:] = np.linalg.norm(np.diff(p_true, axis=0), axis=1) / np.diff(t_all)
+    peaks, k = [], 1
+    while k < len(t_all) - 1:
+        if u_gt[k - 1] < 0.05 and u_gt[k:k + 3].max() > 0.15:
+            w = slice(k, min(k + 6, len(t_all)))
+            peaks.append((t_all[k], np.nanmax(u_tr[w]) if np.isfinite(u_tr[w]).any() else np.nan, u_gt[w].max()))
+            while k < len(t_all) - 1 and u_gt[k] > 0.05:
+                k += 1
+        k += 1
+    ratio = np.array([a / b for _, a, b in peaks if np.isfinite(a)])
+    print(f"  diagnose: {n_miss_fast} untracked frames while moving; {len(peaks)} launches (true poses), peak frame "
+          f"speed tracked/true median {np.median(ratio) if len(ratio) else float('nan'):.2f} "
+          f"(range {ratio.min() if len(ratio) else float('nan'):.2f}-{ratio.max() if len(ratio) else float('nan'):.2f}), "
+          f"true peaks {np.round([b for *_, b in peaks], 2).tolist()} m/s")
     VO = np.asarray(gt.mesh.vertices) @ X_OG[:3, :3].T + X_OG[:3, 3]
     R = X_OG[:3, :3]
     T = ObjectModel(Mesh(VO, np.asarray(gt.mesh.faces)), (), side["true"]["mass"], True,
@@ -143,15 +192,37 @@ def diagnose(bundle_dir: Path, session_dir: Path, segment_s: float = 0.3, loop_o
           f"{_mm(out.by_mode['error_corrected']['scalar_m'])} (corrected) -> {_mm(out.error_after['scalar_m'])} mm; {own}")
 
 
+def bundle_effects(bundle_dir: Path) -> str:
+    """What of the accepted effects reached the bundle: report.json ``model.effects`` / friction, and the URDF's
+    ``<contact>`` values and ``<vysics:dynamics>`` parameters."""
+    import xml.etree.ElementTree as ET
+
+    rep = json.loads((bundle_dir / "report.json").read_text())
+    model = rep.get("model") or {}
+    urdfs = sorted(bundle_dir.rglob("*.urdf"))
+    if not urdfs:
+        return f"report.json model.effects={model.get('effects')} friction={model.get('friction')}; no URDF"
+    root = ET.parse(urdfs[0]).getroot()
+    contact = {e.tag: float(e.attrib["value"]) for e in root.find("link/contact")}
+    dyn = {e.attrib["name"]: float(e.attrib["value"]) for e in root.iter() if e.tag.endswith("param")}
+    com = [float(x) for x in root.find("link/inertial/origin").attrib["xyz"].split()]
+    return (f"report.json model.effects={model.get('effects')} friction={model.get('friction')}; "
+            f"{urdfs[0].relative_to(bundle_dir)} <contact> {contact}, <vysics:dynamics> {dyn}, CoM {com}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--preset", default="small")
     ap.add_argument("--frames", type=int, default=None, help="number of frames (default: the preset's)")
     ap.add_argument("--seed", type=int, default=21)
-    ap.add_argument("--object", default="milk_carton")
+    ap.add_argument("--object", default=None, help="default: milk_carton (push), baking_box (strike)")
     ap.add_argument("--interaction", default="push")
+    ap.add_argument("--mu", type=float, default=None,
+                    help="declared (prior) object-table friction; default: the lab's 0.26, 0.15 for strikes")
     ap.add_argument("--pipeline-preset", default="default")
-    ap.add_argument("--cases", nargs="*", default=list(CASES))
+    ap.add_argument("--residual-config", default=None,
+                    help='JSON overrides of the residual stage config, e.g. \'{"max_base_error_rel_learned": 0.08}\'')
+    ap.add_argument("--cases", nargs="*", default=None)
     ap.add_argument("--work", default="/tmp/vysics-residuals-pipeline")
     ap.add_argument("--diagnose", action="store_true",
                     help="also split the block error into learned-model and tracking parts (reads ground_truth/)")
@@ -159,6 +230,12 @@ def main() -> None:
                     help="with --diagnose: also run the loop on the tracked poses with the true shape carrying "
                          "learned-model-like errors (isolates contact learning and fusion)")
     a = ap.parse_args()
+    strike = a.interaction == "strike"
+    cases = STRIKE_CASES if strike else CASES
+    a.object = a.object or ("baking_box" if strike else "milk_carton")
+    a.cases = a.cases or list(cases)
+    mu = a.mu if a.mu is not None else (STRIKE_MU if strike else None)
+    config = {"residuals": json.loads(a.residual_config)} if a.residual_config else None
     work = Path(a.work)
     data_dir = work / "data"
     os.environ["VYSICS_DATA_DIR"] = str(data_dir)
@@ -167,22 +244,24 @@ def main() -> None:
     from workers.cli import process
 
     frames = f" --frames {a.frames}" if a.frames else ""
+    extra = (f" --mu {a.mu}" if a.mu is not None else "") + (f" --residual-config '{a.residual_config}'" if config else "")
     print(f"# python benchmarks/residuals_pipeline.py --preset {a.preset}{frames} --seed {a.seed} --object {a.object} "
-          f"--interaction {a.interaction} --cases {' '.join(a.cases)}")
+          f"--interaction {a.interaction}{extra} --cases {' '.join(a.cases)}{' --diagnose' if a.diagnose else ''}")
     print("case | true | accepted (fitted) | corrections | held-out all frames: learned -> corrected -> after (mm) | "
           "true effect's candidate on its frames before -> after (mm), decision | wall s | cpu s")
     for case in a.cases:
+        kw = {} if mu is None else {"friction_object_table": mu}
         spec = SynthSpec(object=a.object, interaction=a.interaction, seed=a.seed, preset=a.preset, occlusion="heavy",
-                         n_frames=a.frames, effects=HiddenEffects(**CASES[case]))
-        sdir = work / "sessions" / f"{a.object}_{a.interaction}_{case}_{a.seed}_{a.preset}_{a.frames or 0}"
+                         n_frames=a.frames, effects=HiddenEffects(**cases[case]), **kw)
+        sdir = work / "sessions" / f"{a.object}_{a.interaction}_{case}_{a.seed}_{a.preset}_{a.frames or 0}_{mu or ''}"
         t0, c0 = time.time(), _cpu()
         if not sdir.exists():
             make_session(spec, sdir)
-        res = process(sdir, out=None, data_dir=data_dir, preset=a.pipeline_preset, config=None, quiet=True)
+        res = process(sdir, out=None, data_dir=data_dir, preset=a.pipeline_preset, config=config, quiet=True)
         rep = json.loads((Path(res["bundle_dir"]) / "report.json").read_text())
         r = rep.get("residuals") or {}
         if not r:
-            print(f"{case} | {CASES[case] or '-'} | residual stage failed: {rep.get('reasons', {})}", flush=True)
+            print(f"{case} | {cases[case] or '-'} | residual stage failed: {rep.get('reasons', {})}", flush=True)
             continue
         fitted = {c["effect"]: {k: round(v, 4) for k, v in c["params"].items()} for c in r["candidates"] if c["accepted"]}
         corr = {k: round(v, 3) for k, v in (r.get("corrections") or {}).items()}
@@ -193,14 +272,21 @@ def main() -> None:
         if case in EXPECTED:
             name, key = EXPECTED[case]
             c = next((c for c in r["candidates"] if c["effect"] == name), None)
+            truth = cases[case][case]
+            truth = truth[0] if isinstance(truth, tuple) else truth
             if c is not None:
-                truth = CASES[case][case if case != "table_tilt" else "table_tilt"]
-                truth = truth[0] if isinstance(truth, tuple) else truth
                 own = (f"{name} {key}={c['params'].get(key, float('nan')):.4g} (true {truth}): "
                        f"{_mm(c['heldout_error_before'])} -> {_mm(c['heldout_error_after'])}, "
-                       f"{'accepted' if c['accepted'] else c['reason'][:70]}")
-        print(f"{case} | {CASES[case] or '-'} | {fitted or '-'} | {corr or '-'} | {_mm(eb)} -> {_mm(ec)} -> {_mm(ea)} | "
+                       f"{'accepted' if c['accepted'] else c['reason'][:90]}")
+            else:
+                own = f"{name} not a candidate (true {truth})"
+        print(f"{case} | {cases[case] or '-'} | {fitted or '-'} | {corr or '-'} | {_mm(eb)} -> {_mm(ec)} -> {_mm(ea)} | "
               f"{own} | {time.time() - t0:.0f} | {_cpu() - c0:.0f}", flush=True)
+        tim = rep.get("timings_s") or {}
+        reasons = sorted({c["reason"][:110] for c in r["candidates"] if not c["accepted"]})
+        print(f"  stage seconds {json.dumps({k: round(v) for k, v in tim.items() if isinstance(v, (int, float))})}; "
+              f"reasons: {reasons[:3]}", flush=True)
+        print(f"  bundle: {bundle_effects(Path(res['bundle_dir']))}", flush=True)
         if a.diagnose:
             diagnose(Path(res["bundle_dir"]), sdir, loop_on_tracked=a.loop_on_tracked)
 
