@@ -18,6 +18,13 @@ keyframe re-registered to the model of all the others), (c) a final pass registe
 refined model, and (d) frame 0 registered to that model as well, the body frame moved by the constant offset
 so that X_WO(0) keeps its definition (a mismatch between frame 0 and the merged model would otherwise be an
 offset common to every other frame).
+Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
+normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
+or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
+``degen_stages``: tracking loop, bundle adjustment pairs, leave-one-out rounds, final pass); on well-conditioned
+shapes they add nothing. ORB keypoints can be taken only ``feat_border_px`` inside the mask: keypoints whose
+patch reaches the silhouette or an occluder edge follow the image outline rather than the surface (the limb of
+a rolling bottle stays in place) and pull the estimated motion toward zero.
 Frames never tracked keep tracked=False and get poses interpolated (slerp/lerp) between tracked neighbours.
 O: origin at the centroid of frame 0's object points in W, axes parallel to W (docs/conventions.md).
 """
@@ -127,7 +134,12 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
     desc = None
     if cfg.features and n_mask > 0:
         gray = cv2.cvtColor(session.rgb(i), cv2.COLOR_RGB2GRAY)
-        fm = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) * 255
+        if cfg.feat_border_px > 0:  # keypoints whose patch reaches the silhouette or an occluder edge move with
+            # the image outline, not with the surface (a rolling body's limb stays put): detect well inside the mask
+            k = 2 * cfg.feat_border_px + 1
+            fm = cv2.erode(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))) * 255
+        else:
+            fm = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) * 255
         orb = cv2.ORB_create(nfeatures=cfg.n_features, scaleFactor=1.2, nlevels=4, edgeThreshold=9, patchSize=15,
                              fastThreshold=7)
         kps, des = orb.detectAndCompute(gray, fm)
@@ -239,6 +251,7 @@ class TrackResult:
     keyframes: list[Keyframe]
     carver: FreeSpace | None = None
     kf_log: list[dict] = field(default_factory=list)  # per keyframe candidate: index, far, new_frac, added, accepted
+    n_feat: np.ndarray | None = None  # (N,2) feature correspondences used per frame: tracking, final pass
 
 
 def track(session, cfg: TrackingConfig, progress: Progress = None) -> TrackResult:
@@ -290,8 +303,16 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     model = ObjectModel.build(cfg.model_voxel, [(kf0.P_O, o0.N_W[keep] @ X_OW0[:3, :3].T)])
     last = [0]  # indices of tracked frames
     kf_log: list[dict] = []
+    n_feat = np.zeros((N, 2), int)
 
     icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist)
+    stages = {x.strip() for x in cfg.degen_stages.split(",")}
+
+    def deg_kw_for(stage: str) -> dict:
+        return dict(w_feat_degen=cfg.w_feat_degen if stage in stages else 0.0, degen_tau=cfg.degen_tau)
+
+    deg_kw = deg_kw_for("track")
+    frng = np.random.default_rng(cfg.seed + 1)  # RANSACs of the keyframe features (own stream: rng unchanged)
     for i in range(1, N):
         o = observe(session, i, cfg, rng)
         obs.append(o)
@@ -313,13 +334,14 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 Xc = X_inv(Xr)  # fO = Xr fW -> Xr = X_OW
                 cands.append(Xc)
                 feat_W, feat_O = fW[inl], fO[inl]
+                n_feat[i, 0] = len(feat_W)
         best = None
         for Xc in cands:
             if best is not None and _good(best, cfg):
                 dt, da = _pose_dist(best.X_WO, Xc)
                 if dt < 0.01 and da < 5.0:
                     continue  # this start converges to the pose already found
-            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, **icp_kw)
+            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, **icp_kw, **deg_kw)
             if _better(r, best):
                 best = r
         if a != i - 1 and not _good(best, cfg):
@@ -377,7 +399,10 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             for k in range(1, len(keyframes)):
                 others = _model_from([kf for j, kf in enumerate(keyframes) if j != k], cfg.model_voxel)
                 kf = keyframes[k]
-                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, **{**icp_kw, "dist0": 0.015})
+                fW, fO = _kf_features(kf.kp_W, kf.desc, kf.X_WO, [kk for j, kk in enumerate(keyframes) if j != k],
+                                      cfg, frng) if "refine" in stages else (None, None)
+                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, feat_W=fW, feat_O=fO, w_feat=0.0,
+                        **{**icp_kw, "dist0": 0.015}, **deg_kw_for("refine"))
                 if _good(r, cfg):
                     kf.X_WO = r.X_WO
                     X_OW = X_inv(r.X_WO)
@@ -392,7 +417,10 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             if len(o.P_W) < cfg.min_points:
                 continue
             start = X[i]
-            r = icp(o.P_W, start, model.tree, model.Q, model.N, **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
+            fW, fO = _kf_features(o.kp_W, o.desc, start, keyframes, cfg, frng) if "final" in stages else (None, None)
+            n_feat[i, 1] = 0 if fW is None else len(fW)
+            r = icp(o.P_W, start, model.tree, model.Q, model.N, feat_W=fW, feat_O=fO, w_feat=0.0,
+                    **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters}, **deg_kw_for("final"))
             X[i], frac[i], rmse[i] = r.X_WO, r.inlier_frac, r.rmse
             tracked[i] = _good(r, cfg)
             if i % 20 == 0:
@@ -403,7 +431,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             o0 = observe(session, 0, _replace(cfg, max_points=cfg.regauge_points), rng)  # dense: one frame sets O
             model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw)
     X = interpolate_untracked(X, tracked)
-    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log)
+    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat)
 
 
 def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], carver: "FreeSpace | None",
@@ -436,7 +464,8 @@ def _bundle_adjust(keyframes: list[Keyframe], cfg: TrackingConfig, rng: np.rando
     from service.tracking.posegraph import bundle_adjust
 
     feats = {}
-    if cfg.ba_features:
+    ba_degen = cfg.w_feat_degen if "ba" in {x.strip() for x in cfg.degen_stages.split(",")} else 0.0
+    if cfg.ba_features or ba_degen > 0:
         for a in range(len(keyframes)):
             for b in range(a + 1, len(keyframes)):
                 ka, kb = keyframes[a], keyframes[b]
@@ -445,7 +474,8 @@ def _bundle_adjust(keyframes: list[Keyframe], cfg: TrackingConfig, rng: np.rando
                     feats[(a, b)] = (ka.kp_W[m[:, 0]], kb.kp_W[m[:, 1]])
     X_OW = np.stack([X_inv(kf.X_WO) for kf in keyframes])
     res = bundle_adjust(X_OW, [kf.P_W for kf in keyframes], [kf.N_W for kf in keyframes], feats,
-                        iters=cfg.ba_iters, huber=cfg.ba_huber, w_feat=cfg.ba_w_feat, rng=rng)
+                        iters=cfg.ba_iters, huber=cfg.ba_huber, w_feat=cfg.ba_w_feat if cfg.ba_features else 0.0,
+                        w_feat_degen=ba_degen, degen_tau=cfg.degen_tau, rng=rng)
     for kf, X_ow in zip(keyframes[1:], res.X_OW[1:]):
         kf.X_WO = X_inv(X_ow)
         kf.P_O = kf.P_W @ X_ow[:3, :3].T + X_ow[:3, 3]
@@ -483,6 +513,37 @@ def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: li
     if not A:
         return np.zeros((0, 3)), np.zeros((0, 3))
     return np.concatenate(A), np.concatenate(B)
+
+
+def _kf_features(kp_W: np.ndarray, desc: np.ndarray | None, X_WO: np.ndarray, keyframes: list[Keyframe],
+                 cfg: TrackingConfig, rng: np.random.Generator, n_kf: int = 3
+                 ) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """3-D feature correspondences (point in W, same point in O) of one view against the ``n_kf`` keyframes
+    closest in orientation to X_WO, kept when a RANSAC rigid fit accepts them and its pose agrees with X_WO
+    within 30° / 3 cm (the weak direction is the one they must fix; a gross disagreement is a wrong fit).
+    (None, None) when features are off or fewer than 6 survive."""
+    if cfg.w_feat_degen <= 0 or desc is None or len(kp_W) < 6 or not keyframes:
+        return None, None
+    ang = [_pose_dist(kf.X_WO, X_WO)[1] for kf in keyframes]
+    A, B = [], []
+    for j in np.argsort(ang)[:n_kf]:
+        kf = keyframes[j]
+        m = _match(desc, kf.desc)
+        if len(m):
+            A.append(kp_W[m[:, 0]])
+            B.append(kf.kp_O[m[:, 1]])
+    if not A:
+        return None, None
+    fW, fO = np.concatenate(A), np.concatenate(B)
+    if len(fW) < 6:
+        return None, None
+    Xr, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng)
+    if Xr is None or inl.sum() < 6:
+        return None, None
+    dt, da = _pose_dist(X_inv(Xr), X_WO)
+    if dt > 0.03 or da > 30.0:
+        return None, None
+    return fW[inl], fO[inl]
 
 
 def interpolate_untracked(X_WO: np.ndarray, tracked: np.ndarray) -> np.ndarray:

@@ -53,6 +53,8 @@ class TrackingConfig:
     # model (wrong pose or clutter in the mask): it neither becomes a keyframe nor supervises the SDF
     features: bool = True  # ORB features inside the mask for the coarse motion
     n_features: int = 400
+    feat_border_px: int = 0  # ORB keypoints at least this far inside the object mask (0: the mask dilated by 1 px;
+    # 8 helped the bottle development session and hurt the evaluation sessions, docs/tracking.md)
     # registration
     icp_iters: int = 12
     icp_dist0: float = 0.03  # initial correspondence radius
@@ -74,6 +76,12 @@ class TrackingConfig:
     ba_iters: int = 10  # keyframe bundle adjustment (service.tracking.posegraph) iterations (0: off)
     ba_features: bool = False  # ORB matches between keyframes enter the bundle adjustment (off: features at depth
     # edges biased it; textureless styrofoam 706: 0.98° median with them, 0.59° without)
+    # appearance along the shape's weak directions (geometry.degenerate_map; Zhang, Kaess & Singh 2016): 3-D ORB
+    # correspondences constrain only the directions the point-to-plane terms leave free (roll of a body of
+    # revolution), in tracking, bundle adjustment, leave-one-out rounds and the final pass (0: off)
+    w_feat_degen: float = 0.0  # off: no gain measured on the bottle/egg sessions (docs/tracking.md)
+    degen_stages: str = "track,ba,refine,final"  # where: tracking loop, bundle adjustment, leave-one-out, final pass
+    degen_tau: float = 0.02  # normalised eigenvalue below which a direction counts as weak (1/3: fully constrained)
     ba_huber: float = 0.002  # Huber threshold of its point-to-plane residuals
     ba_w_feat: float = 0.3  # weight of its feature terms
     final_pass: bool = True  # re-register every frame against the final model

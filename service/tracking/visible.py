@@ -83,6 +83,12 @@ def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng
         keep[v[ok], u[ok]] = True
         parts.append(rays_from_frame(depth, mask, K, X_OC, stride=cfg.sdf_stride, ring_px=cfg.sdf_ring_px,
                                      max_object_rays=2000, max_free_rays=1500, keep=keep, rng=rng))
+    if not parts:
+        from service.errors import StageFailed
+
+        raise StageFailed("tracking", f"none of the {len(frames)} frames picked for the visible SDF is consistent with "
+                                      f"the free space seen by the keyframes (more than {cfg.carve_frame_frac:.0%} of "
+                                      "their object points seen through): the track is wrong")
     return RaySet.concatenate(parts)
 
 
