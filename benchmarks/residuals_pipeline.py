@@ -9,7 +9,7 @@ error of the true effect's candidate on its own held-out frames before -> after.
 
     python benchmarks/residuals_pipeline.py [--preset small] [--frames N] [--seed 21] [--object milk_carton]
         [--interaction push|strike] [--mu 0.15] [--residual-config JSON] [--cases none clock_offset ...]
-        [--work DIR] [--diagnose [--loop-on-tracked]]
+        [--work DIR] [--diagnose [--loops MODEL@POSES ...]]
 
 ``--interaction strike``: impulsive pushes, the object slides free (baking box by default, declared table
 friction 0.15, the hidden values of ``benchmarks/residuals.py strike``; cases none, friction_object_table,
@@ -68,7 +68,12 @@ def _mm(x) -> str:
     return "-" if x is None else f"{1e3 * x:.2f}"
 
 
-def diagnose(bundle_dir: Path, session_dir: Path, segment_s: float = 0.3, loop_on_tracked: bool = False) -> None:
+class _Skip(Exception):
+    pass
+
+
+def diagnose(bundle_dir: Path, session_dir: Path, segment_s: float = 0.3, loops: tuple[str, ...] = (),
+             stage_config: dict | None = None, evaluate: bool = True) -> None:
     """Where the held-out block error comes from: the learned model vs the true one (shape, mass, inertia,
     CoM from the sidecar and ground_truth/, expressed in the tracker's frame O), on the tracked poses vs the
     true ones. Evaluation only: nothing here reaches the pipeline's model."""
@@ -133,6 +138,7 @@ def diagnose(bundle_dir: Path, session_dir: Path, segment_s: float = 0.3, loop_o
         if u_gt[k - 1] < 0.05 and u_gt[k:k + 3].max() > 0.15:
             w = slice(k, min(k + 6, len(t_all)))
             peaks.append((t_all[k], np.nanmax(u_tr[w]) if np.isfinite(u_tr[w]).any() else np.nan, u_gt[w].max()))
+            k += int(np.argmax(u_gt[k:k + 3]))  # from the peak to where the object has settled
             while k < len(t_all) - 1 and u_gt[k] > 0.05:
                 k += 1
         k += 1
@@ -158,6 +164,8 @@ def diagnose(bundle_dir: Path, session_dir: Path, segment_s: float = 0.3, loop_o
     cfg = dataclasses.replace(ResidualConfig(), segment_s=segment_s)
     sim = make_simulator()
     try:
+        if not evaluate:
+            raise _Skip
         for mname, M in (("learned", L), ("true", T)):
             for pname, X in (("tracked", tr.X_WO), ("true", gt_O)):
                 traj = ObservedTrajectory(t=tr.t, X_WO=X, tracked=ok)
@@ -169,27 +177,130 @@ def diagnose(bundle_dir: Path, session_dir: Path, segment_s: float = 0.3, loop_o
                 by = ", ".join(f"{k} {v['frames']} fr {v['pos_err_m'] * 1e3:.1f} mm" for k, v in tab.items() if v["frames"])
                 print(f"  diagnose: {mname} model on {pname} poses: {len(segs)} blocks of {segment_s} s, block error "
                       f"{e.mean() * 1e3:.1f} mm (median {np.median(e) * 1e3:.1f}); position by mode: {by}")
+        # which part of the learned model costs what: swap one part for the truth (or for the uniform-density
+        # value of the fused shape), same blocks (cut on the tracked poses with the learned model's modes)
+        import trimesh
+
+        tm = trimesh.Trimesh(np.asarray(L.visual.vertices), np.asarray(L.visual.faces), process=False)
+        c_fused = np.asarray(tm.center_mass if tm.is_watertight else tm.vertices.mean(0), float)
+        I_fused = (np.asarray(tm.moment_inertia, float) * (L.mass / tm.mass)) if tm.is_watertight else L.inertia_O
+        print(f"  diagnose: CoM learned - true {np.round((L.com_O - T.com_O) * 1e3, 1).tolist()} mm, fused-shape "
+              f"centroid - true {np.round((c_fused - T.com_O) * 1e3, 1).tolist()} mm (frame O)")
+        swaps = {
+            "learned": L,
+            "learned, CoM = fused centroid": dataclasses.replace(L, com_O=c_fused),
+            "learned, CoM = fused centroid, uniform-density inertia": dataclasses.replace(L, com_O=c_fused, inertia_O=I_fused),
+            "learned, true CoM and inertia": dataclasses.replace(L, com_O=T.com_O, inertia_O=T.inertia_O),
+            "true shape, learned CoM and inertia": dataclasses.replace(T, com_O=L.com_O, inertia_O=L.inertia_O),
+            "physible (contact-stage) shape, learned CoM and inertia": dataclasses.replace(L, visual=co.physible_mesh),
+            "convex hull of the fused shape's 2-98 % box-quantile core": dataclasses.replace(L, visual=_core(L.visual)),
+            "true": T,
+        }
+        for pname, X in (("tracked", tr.X_WO), ("true", gt_O)):
+            traj = ObservedTrajectory(t=tr.t, X_WO=X, tracked=ok)
+            inp = ResidualInputs(L, (traj,), float(sess.table_height), robot=(robot,))
+            segs = make_segments(inp, [classify(L, traj, float(sess.table_height), robot, cfg)], cfg)
+            ev = Evaluator(sim, float(sess.table_height), object_radius(T))
+            row = []
+            for sname, M in swaps.items():
+                e = ev.errors(M, {}, segs)
+                row.append(f"{sname} {e.mean() * 1e3:.1f} (median {np.median(e) * 1e3:.1f})")
+            print(f"  diagnose: swaps on {pname} poses, {len(segs)} blocks, mean block error mm: " + "; ".join(row),
+                  flush=True)
+    except _Skip:
+        pass
     finally:
         sim.close()
-    if not loop_on_tracked:
-        return
-    # the loop itself on the tracked poses, with the true shape carrying learned-model-like errors (6 % too
-    # large, inertia x 1.3, CoM 5 mm off) that the nuisance refit must absorb: isolates contact learning and
-    # fusion, keeps tracking
+    outs = {}
+    if not loops:
+        return outs
+    # the loop itself (evaluation only) with one part of the pipeline replaced by the truth: which part stops
+    # detection. Models: "learned" (the pipeline's), "perturbed" (the true shape with learned-model-like errors,
+    # 6 % too large, inertia x 1.3, CoM 5 mm off, that the nuisance refit must absorb), "true" (exact). Poses:
+    # "tracked" or "true" (ground truth in the tracker's frame O). Settings of tests/residuals/test_strike_sessions:
+    # fast() with 10 training blocks and 24 evaluations per fit; nuisance refit on (as in the pipeline).
     from service.residuals import run
     from service.residuals.effects import NUISANCE_LEARNED, scale_model
 
     Tp = scale_model(dataclasses.replace(T, com_O=T.com_O + np.array([0.004, -0.003, 0.0]),
                                          inertia_O=T.inertia_O * 1.3), (1.06, 1.06, 1.06))
-    lcfg = dataclasses.replace(ResidualConfig.fast(), segment_s=segment_s, max_train_segments=10, nuisance=NUISANCE_LEARNED,
-                               candidates=("clock_offset", "friction_table", "table_tilt", "linear_damping", "restitution"))
-    out = run(ResidualInputs(Tp, (ObservedTrajectory(t=tr.t, X_WO=tr.X_WO, tracked=ok),), float(sess.table_height),
-                             robot=(robot,)), lcfg)
-    own = "; ".join(f"{c.effect} {json.dumps({k: round(v, 4) for k, v in c.params.items()})} "
-                    f"{_mm(c.heldout_error_before)} -> {_mm(c.heldout_error_after)} mm" for c in out.candidates if c.params)
-    print(f"  loop on tracked poses, true shape with model errors: accepted {list(out.accepted)} "
-          f"{json.dumps({k: round(v, 4) for k, v in out.effects.items()})}; held-out {_mm(out.error_before['scalar_m'])} -> "
-          f"{_mm(out.by_mode['error_corrected']['scalar_m'])} (corrected) -> {_mm(out.error_after['scalar_m'])} mm; {own}")
+    models = {"learned": L, "perturbed": Tp, "true": T}
+    poses = {"tracked": tr.X_WO, "true": gt_O}
+    for variant in loops:
+        c0, t0 = _cpu(), time.time()
+        if variant == "stage":  # the pipeline's residual stage itself (its inputs, default config + overrides)
+            mname, pname = "learned", "tracked"
+            lcfg = ResidualConfig.from_dict(stage_config or {}) if hasattr(ResidualConfig, "from_dict") else \
+                dataclasses.replace(ResidualConfig(), **(stage_config or {}))
+            out = run(ResidualInputs(L, (ObservedTrajectory(t=tr.t, X_WO=tr.X_WO, v_WO_W=tr.v_WO_W, w_WO_O=tr.w_WO_O,
+                                                            tracked=tr.tracked),), float(sess.table_height),
+                                     robot=(robot,), step_residuals=co.residuals), lcfg)
+        else:
+            mname, pname = variant.split("@")
+            lcfg = dataclasses.replace(ResidualConfig.fast(), segment_s=segment_s, max_train_segments=10,
+                                       fit_maxiter=24, nuisance=NUISANCE_LEARNED if mname != "true" else (),
+                                       candidates=("clock_offset", "friction_table", "table_tilt", "linear_damping",
+                                                   "restitution"), **(stage_config or {}))
+            out = run(ResidualInputs(models[mname], (ObservedTrajectory(t=tr.t, X_WO=poses[pname], tracked=ok),),
+                                     float(sess.table_height), robot=(robot,)), lcfg)
+        own = "; ".join(f"{c.effect} {json.dumps({k: round(v, 4) for k, v in c.params.items()})} "
+                        f"{_mm(c.heldout_error_before)} -> {_mm(c.heldout_error_after)} mm"
+                        f"{'' if c.accepted else ' (' + c.reason[:60] + ')'}" for c in out.candidates if c.params)
+        outs[variant] = out
+        ec = (out.by_mode.get("error_corrected") or {}).get("scalar_m")
+        why = "" if own else f"; {out.candidates[0].reason[:150]}"
+        print(f"  loop {variant}{' ' + json.dumps(stage_config) if stage_config else ''}, {mname} model on {pname} poses: accepted {list(out.accepted)} "
+              f"{json.dumps({k: round(v, 4) for k, v in out.effects.items()})}; corrections "
+              f"{json.dumps({k: round(v, 3) for k, v in out.corrections.items()})}; held-out {_mm(out.error_before['scalar_m'])} -> "
+              f"{_mm(ec)} (corrected) -> {_mm(out.error_after['scalar_m'])} mm; {own}{why} "
+              f"[{time.time() - t0:.0f} s wall, {_cpu() - c0:.0f} s cpu]", flush=True)
+    return outs
+
+
+def bundle_check(bundle_dir: Path, session_dir: Path, residuals, out_dir: Path) -> str:
+    """The flow's bundle assembly (``service.bundle.parts_from_outputs`` + ``write_bundle``, as ``bundle_task``)
+    on the stored stage outputs of a session with ``residuals`` (a ResidualOutputs) in place of the stored
+    residual output: which accepted effects reach report.json and the URDF. A plumbing check only: the
+    residual output may come from a diagnostic loop run, not from the pipeline's own stage."""
+    from service.bundle import parts_from_outputs, write_bundle
+    from service.contact.types import ContactOutputs
+    from service.export.types import ExportConfig
+    from service.fusion.types import FusionOutputs
+    from service.io import load_value
+    from service.session import load_session, sha256_of
+    from service.tracking.types import TrackingOutputs
+
+    art = bundle_dir.parent.parent.parent
+    keys = json.loads((bundle_dir.parent / "manifest.json").read_text())["inputs"]
+    outputs = {"tracking": load_value(TrackingOutputs, art / "tracking" / keys["tracking"] / "value"),
+               "contact": load_value(ContactOutputs, art / "contact" / keys["contact"] / "value"),
+               "fusion": load_value(FusionOutputs, art / "fusion" / keys["fusion"] / "value"),
+               "residuals": residuals}
+    sess = load_session(session_dir, sha256_of(session_dir))
+    parts = parts_from_outputs(session=sess, outputs=outputs, timings_s={}, reasons={}, export_config=ExportConfig(),
+                               plots_dir=out_dir / "figures")
+    write_bundle(parts, out_dir / "bundle")
+    rep = json.loads((out_dir / "bundle" / "report.json").read_text())
+    return (f"accepted {list(residuals.accepted)} {json.dumps({k: round(v, 4) for k, v in residuals.effects.items()})}"
+            f" -> report.json residuals.accepted {rep.get('residuals', {}).get('accepted')}; "
+            + bundle_effects(out_dir / "bundle"))
+
+
+def _core(mesh, q: float = 2.0):
+    """The fused mesh without its thin protrusions: vertices inside the q..100-q % quantiles along the principal
+    axes (the simulator takes the convex hull, so one spike widens the whole body)."""
+    import numpy as np
+    import trimesh
+
+    from service.mesh import Mesh
+
+    V = np.asarray(mesh.vertices, float)
+    c = V.mean(0)
+    A = np.linalg.svd(V - c, full_matrices=False)[2]
+    Y = (V - c) @ A.T
+    lo, hi = np.percentile(Y, q, axis=0), np.percentile(Y, 100 - q, axis=0)
+    h = trimesh.convex.convex_hull(np.clip(Y, lo, hi) @ A + c)
+    return Mesh(np.asarray(h.vertices), np.asarray(h.faces))
 
 
 def bundle_effects(bundle_dir: Path) -> str:
@@ -222,13 +333,20 @@ def main() -> None:
     ap.add_argument("--pipeline-preset", default="default")
     ap.add_argument("--residual-config", default=None,
                     help='JSON overrides of the residual stage config, e.g. \'{"max_base_error_rel_learned": 0.08}\'')
+    ap.add_argument("--bundle-check", action="store_true",
+                    help="with --loops: write a bundle (the flow's assembly) from the stored stage outputs and the "
+                         "first loop run that accepted an effect, and show what reached report.json and the URDF")
     ap.add_argument("--cases", nargs="*", default=None)
     ap.add_argument("--work", default="/tmp/vysics-residuals-pipeline")
     ap.add_argument("--diagnose", action="store_true",
                     help="also split the block error into learned-model and tracking parts (reads ground_truth/)")
     ap.add_argument("--loop-on-tracked", action="store_true",
                     help="with --diagnose: also run the loop on the tracked poses with the true shape carrying "
-                         "learned-model-like errors (isolates contact learning and fusion)")
+                         "learned-model-like errors (isolates contact learning and fusion); = --loops perturbed@tracked")
+    ap.add_argument("--loops", nargs="*", default=[],
+                    help="with --diagnose: run the loop with MODEL@POSES, MODEL in learned|perturbed|true, POSES in "
+                         "tracked|true (e.g. learned@true perturbed@tracked), or 'stage' (the pipeline's residual "
+                         "stage on its stored inputs); --residual-config overrides apply to these runs too")
     a = ap.parse_args()
     strike = a.interaction == "strike"
     cases = STRIKE_CASES if strike else CASES
@@ -288,7 +406,15 @@ def main() -> None:
               f"reasons: {reasons[:3]}", flush=True)
         print(f"  bundle: {bundle_effects(Path(res['bundle_dir']))}", flush=True)
         if a.diagnose:
-            diagnose(Path(res["bundle_dir"]), sdir, loop_on_tracked=a.loop_on_tracked)
+            outs = diagnose(Path(res["bundle_dir"]), sdir, loops=tuple(a.loops) + (("perturbed@tracked",) if a.loop_on_tracked else ()),
+                     stage_config=(config or {}).get("residuals"))
+            if a.bundle_check:
+                got = next(((v, o) for v, o in outs.items() if o.accepted), None)
+                if got is None:
+                    print("  bundle check: no loop run accepted an effect", flush=True)
+                else:
+                    print(f"  bundle check ({got[0]}): " + bundle_check(Path(res["bundle_dir"]), sdir, got[1],
+                                                                       work / "bundle_check" / case), flush=True)
 
 
 if __name__ == "__main__":
