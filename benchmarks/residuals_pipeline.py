@@ -375,7 +375,12 @@ def main() -> None:
         t0, c0 = time.time(), _cpu()
         if not sdir.exists():
             make_session(spec, sdir)
-        res = process(sdir, out=None, data_dir=data_dir, preset=a.pipeline_preset, config=config, quiet=True)
+        try:
+            res = process(sdir, out=None, data_dir=data_dir, preset=a.pipeline_preset, config=config, quiet=True)
+        except Exception as e:  # noqa: BLE001 - a failed session is a row of the table, not the end of the run
+            print(f"{case} | {cases[case] or '-'} | pipeline failed: {type(e).__name__}: {str(e)[:200]} | | | | "
+                  f"{time.time() - t0:.0f} | {_cpu() - c0:.0f}", flush=True)
+            continue
         rep = json.loads((Path(res["bundle_dir"]) / "report.json").read_text())
         r = rep.get("residuals") or {}
         if not r:
@@ -404,7 +409,7 @@ def main() -> None:
         reasons = sorted({c["reason"][:110] for c in r["candidates"] if not c["accepted"]})
         print(f"  stage seconds {json.dumps({k: round(v) for k, v in tim.items() if isinstance(v, (int, float))})}; "
               f"reasons: {reasons[:3]}", flush=True)
-        print(f"  bundle: {bundle_effects(Path(res['bundle_dir']))}", flush=True)
+        print(f"  bundle {res['bundle_dir']}: {bundle_effects(Path(res['bundle_dir']))}", flush=True)
         if a.diagnose:
             outs = diagnose(Path(res["bundle_dir"]), sdir, loops=tuple(a.loops) + (("perturbed@tracked",) if a.loop_on_tracked else ()),
                      stage_config=(config or {}).get("residuals"))
