@@ -376,7 +376,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--object", default="baking_box",
                    help="object kind: baking_box, bottle, egg, milk_carton, oat_carton, styrofoam, prism, l_block, mug "
                         "(docs/synthetic-lab.md)")
-    s.add_argument("--interaction", default="push", choices=["push", "pivot", "topple"])
+    s.add_argument("--interaction", default="push", choices=["push", "pivot", "topple", "strike"],
+                   help="push | pivot | topple | strike (impulsive pushes, the object slides free)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--preset", default="tiny", choices=["tiny", "small", "full"])
     s.add_argument("--frames", type=int, default=None, help="number of frames (default: the preset's)")

@@ -39,6 +39,15 @@ def test_synth_writes_folder_and_archive(session):
     assert archive.is_file() and archive.stat().st_size > 0
 
 
+def test_synth_offers_every_interaction_of_the_lab():
+    from service.synth.types import INTERACTIONS
+    from workers.cli import build_parser
+
+    synth = build_parser()._subparsers._group_actions[0].choices["synth"]
+    action = next(a for a in synth._actions if a.dest == "interaction")
+    assert tuple(action.choices) == INTERACTIONS
+
+
 def test_synth_bad_effect(tmp_path, capsys):
     assert main(["synth", "--effect", "nonsense", "--out", str(tmp_path / "x")]) == 2
     assert "NAME=VALUE" in capsys.readouterr().err
