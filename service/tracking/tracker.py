@@ -53,6 +53,7 @@ class FrameObs:
     kp_W: np.ndarray  # (F,3) 3-D feature points
     desc: np.ndarray | None  # (F,32) uint8 ORB descriptors
     n_mask: int
+    C: np.ndarray | None = None  # (N,) intensities in [0, 1] of P_W (colour term on)
 
 
 @dataclass
@@ -65,6 +66,7 @@ class Keyframe:
     kp_O: np.ndarray
     desc: np.ndarray | None
     kp_W: np.ndarray | None = None
+    C: np.ndarray | None = None  # (len(P_W),) intensities of the added points (colour term on)
 
 
 @dataclass
@@ -75,9 +77,12 @@ class ObjectModel:
     Q: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     N: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     tree: cKDTree | None = None
+    C: np.ndarray | None = None  # (M,) voxel-averaged intensities (colour term on)
+    G: np.ndarray | None = None  # (M,3) their tangent-plane gradients (geometry.color_gradients)
 
     @staticmethod
-    def build(voxel: float, parts: list[tuple[np.ndarray, np.ndarray]]) -> "ObjectModel":
+    def build(voxel: float, parts: list[tuple[np.ndarray, np.ndarray]],
+              colors: list[np.ndarray | None] | None = None) -> "ObjectModel":
         P = np.concatenate([p for p, _ in parts])
         Nn = np.concatenate([n for _, n in parts])
         key = np.floor(P / voxel).astype(np.int64)
@@ -89,7 +94,16 @@ class ObjectModel:
         np.add.at(Nm, inv, Nn)
         Q /= cnt[:, None]
         Nm /= np.maximum(np.linalg.norm(Nm, axis=1, keepdims=True), 1e-12)
-        return ObjectModel(voxel, Q, Nm, cKDTree(Q))
+        tree = cKDTree(Q)
+        if colors is None or any(c is None for c in colors):
+            return ObjectModel(voxel, Q, Nm, tree)
+        from service.tracking.geometry import color_gradients
+
+        Cc = np.concatenate(colors)
+        Cm = np.zeros((len(cnt),) + Cc.shape[1:])
+        np.add.at(Cm, inv, Cc)
+        Cm /= cnt.reshape((-1,) + (1,) * (Cc.ndim - 1))
+        return ObjectModel(voxel, Q, Nm, tree, Cm, color_gradients(Q, Nm, Cm, tree, radius=3.5 * voxel))
 
 
 def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> FrameObs:
@@ -127,9 +141,13 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
     R, t = X_WC[:3, :3], X_WC[:3, 3]
     P_W = P_C @ R.T + t
     N_W = N_C @ R.T
+    C = None
+    if cfg.w_color > 0:
+        C = point_colors(session.rgb(i), u, v, cfg.color_mode, cfg.color_blur_px)
     # the table next to the object's base has continuous depth and leaks in with the mask boundary
     above = (P_W[:, 2] > session.table_height + cfg.table_clearance) & ~near_effector(session, i, P_W, cfg)
     P_W, N_W = P_W[above], N_W[above]
+    C = None if C is None else C[above]
     kp_W = np.zeros((0, 3))
     desc = None
     if cfg.features and n_mask > 0:
@@ -156,7 +174,28 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
                 above = kw[:, 2] > session.table_height + cfg.table_clearance
                 kp_W = kw[above]
                 desc = des[good][above]
-    return FrameObs(P_W, N_W, kp_W, desc, n_mask)
+    return FrameObs(P_W, N_W, kp_W, desc, n_mask, C)
+
+
+def point_colors(rgb: np.ndarray, u: np.ndarray, v: np.ndarray, mode: str, blur_px: float) -> np.ndarray:
+    """Appearance of pixels (u, v) of an RGB image (H,W,3) uint8 for the colour term, from the image blurred with a
+    Gaussian of σ = blur_px: ``gray`` (N,) the Rec. 601 luma in [0, 1]; ``chroma`` (N,2) the chromaticities
+    r/(r+g+b), g/(r+g+b), which Lambert shading under white light (a factor common to the three channels)
+    leaves unchanged — the shading of a turning body stays with the light, not with the surface."""
+    import cv2
+
+    if mode == "gray":
+        g = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
+        if blur_px > 0:
+            g = cv2.GaussianBlur(g, (0, 0), blur_px)
+        return g[v, u].astype(np.float64)
+    if mode != "chroma":
+        raise ValueError(f"color_mode must be 'gray' or 'chroma', not {mode!r}")
+    f = rgb.astype(np.float32)
+    if blur_px > 0:
+        f = cv2.GaussianBlur(f, (0, 0), blur_px)
+    c = f[v, u].astype(np.float64)
+    return c[:, :2] / np.maximum(c.sum(1, keepdims=True), 1.0)
 
 
 def _match(desc_a: np.ndarray | None, desc_b: np.ndarray | None, ratio: float = 0.8) -> np.ndarray:
@@ -295,12 +334,13 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     tracked[0], frac[0], rmse[0] = True, 1.0, 0.0
     X_OW0 = X_inv(X[0])
     kf0 = Keyframe(0, X[0].copy(), o0.P_W[keep] @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.P_W[keep], o0.N_W[keep],
-                   o0.kp_W @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.desc, o0.kp_W)
+                   o0.kp_W @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.desc, o0.kp_W,
+                   None if o0.C is None else o0.C[keep])
     keyframes = [kf0]
     carver = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px) if cfg.carve else None
     if carver is not None:
         carver.add(0, session.depth(0), X[0])
-    model = ObjectModel.build(cfg.model_voxel, [(kf0.P_O, o0.N_W[keep] @ X_OW0[:3, :3].T)])
+    model = _model_from(keyframes, cfg.model_voxel)
     last = [0]  # indices of tracked frames
     kf_log: list[dict] = []
     n_feat = np.zeros((N, 2), int)
@@ -310,6 +350,14 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
 
     def deg_kw_for(stage: str) -> dict:
         return dict(w_feat_degen=cfg.w_feat_degen if stage in stages else 0.0, degen_tau=cfg.degen_tau)
+
+    cstages = {x.strip() for x in cfg.color_stages.split(",")}
+
+    def col_kw(stage: str, C_src: np.ndarray | None, m: "ObjectModel") -> dict:
+        if cfg.w_color <= 0 or stage not in cstages or C_src is None or m.C is None:
+            return {}
+        return dict(C_src=C_src, C_model=m.C, G_model=m.G, w_color=cfg.w_color, color_huber=cfg.color_huber,
+                    color_tau=cfg.color_tau)
 
     deg_kw = deg_kw_for("track")
     frng = np.random.default_rng(cfg.seed + 1)  # RANSACs of the keyframe features (own stream: rng unchanged)
@@ -341,7 +389,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 dt, da = _pose_dist(best.X_WO, Xc)
                 if dt < 0.01 and da < 5.0:
                     continue  # this start converges to the pose already found
-            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, **icp_kw, **deg_kw)
+            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, **icp_kw,
+                    **{**deg_kw, **col_kw("track", o.C, model)})
             if _better(r, best):
                 best = r
         if a != i - 1 and not _good(best, cfg):
@@ -381,7 +430,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                                seen=int(st_all.sum()), accepted=bool(consistent and adds)))
             if consistent and adds:
                 kf = Keyframe(i, X[i].copy(), o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W[near], o.N_W[near],
-                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W)
+                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W,
+                              None if o.C is None else o.C[near])
                 keyframes.append(kf)
                 if carver is not None:
                     carver.add(i, session.depth(i), X[i])
@@ -402,7 +452,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 fW, fO = _kf_features(kf.kp_W, kf.desc, kf.X_WO, [kk for j, kk in enumerate(keyframes) if j != k],
                                       cfg, frng) if "refine" in stages else (None, None)
                 r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, feat_W=fW, feat_O=fO, w_feat=0.0,
-                        **{**icp_kw, "dist0": 0.015}, **deg_kw_for("refine"))
+                        **{**icp_kw, "dist0": 0.015}, **{**deg_kw_for("refine"), **col_kw("refine", kf.C, others)})
                 if _good(r, cfg):
                     kf.X_WO = r.X_WO
                     X_OW = X_inv(r.X_WO)
@@ -420,7 +470,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             fW, fO = _kf_features(o.kp_W, o.desc, start, keyframes, cfg, frng) if "final" in stages else (None, None)
             n_feat[i, 1] = 0 if fW is None else len(fW)
             r = icp(o.P_W, start, model.tree, model.Q, model.N, feat_W=fW, feat_O=fO, w_feat=0.0,
-                    **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters}, **deg_kw_for("final"))
+                    **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters},
+                    **{**deg_kw_for("final"), **col_kw("final", o.C, model)})
             X[i], frac[i], rmse[i] = r.X_WO, r.inlier_frac, r.rmse
             tracked[i] = _good(r, cfg)
             if i % 20 == 0:
@@ -489,7 +540,7 @@ def _model_from(keyframes: list[Keyframe], voxel: float) -> ObjectModel:
     for kf in keyframes:
         R_OW = kf.X_WO[:3, :3].T
         parts.append((kf.P_O, kf.N_W @ R_OW.T))
-    return ObjectModel.build(voxel, parts)
+    return ObjectModel.build(voxel, parts, [kf.C for kf in keyframes])
 
 
 def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: list[Keyframe], lost: bool

@@ -82,6 +82,14 @@ class TrackingConfig:
     w_feat_degen: float = 0.0  # off: no gain measured on the bottle/egg sessions (docs/tracking.md)
     degen_stages: str = "track,ba,refine,final"  # where: tracking loop, bundle adjustment, leave-one-out, final pass
     degen_tau: float = 0.02  # normalised eigenvalue below which a direction counts as weak (1/3: fully constrained)
+    # colour along the weak directions (geometry.color_gradients; Park, Zhou & Koltun 2017): per model point an
+    # intensity and its tangent-plane gradient, the photometric residual projected on the same weak directions
+    w_color: float = 0.0  # weight (m² per squared intensity unit; 0: off)
+    color_stages: str = "track,refine,final"  # where: tracking loop, leave-one-out rounds, final pass
+    color_tau: float = 0.1  # its weak-direction threshold (a lying bottle seen from one side: roll λ̂ ≈ 0.01–0.03)
+    color_huber: float = 0.05  # Huber threshold of the intensity residual (intensity in [0, 1])
+    color_mode: str = "chroma"  # "gray": luma; "chroma": r, g chromaticities (unchanged by Lambert shading)
+    color_blur_px: float = 1.0  # Gaussian σ (px) of the grey image the point intensities are read from
     ba_huber: float = 0.002  # Huber threshold of its point-to-plane residuals
     ba_w_feat: float = 0.3  # weight of its feature terms
     final_pass: bool = True  # re-register every frame against the final model
