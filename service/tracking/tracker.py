@@ -25,6 +25,10 @@ or extrusion sliding), 3-D ORB correspondences are added restricted to those dir
 shapes they add nothing. ORB keypoints can be taken only ``feat_border_px`` inside the mask: keypoints whose
 patch reaches the silhouette or an occluder edge follow the image outline rather than the surface (the limb of
 a rolling bottle stays in place) and pull the estimated motion toward zero.
+Colour along the weak directions (``w_color``, off by default; ``geometry.color_gradients``, Park, Zhou & Koltun
+2017): keyframe points keep their chromaticity (or luma), the model a voxel-averaged colour and its tangent-plane
+gradient per point, and the photometric residual enters the ICP of the stages in ``color_stages`` projected on
+the weak directions at ``color_tau`` (docs/tracking.md for the figures).
 Frames never tracked keep tracked=False and get poses interpolated (slerp/lerp) between tracked neighbours.
 O: origin at the centroid of frame 0's object points in W, axes parallel to W (docs/conventions.md).
 """

@@ -65,3 +65,16 @@ def test_color_does_not_enter_a_well_conditioned_fit():
     ra = _register(P, N, X_true, X_start, 0.3, np.random.default_rng(3), w_color=0.0)
     rb = _register(P, N, X_true, X_start, 0.3, np.random.default_rng(3), w_color=0.01)  # very noisy colour
     assert np.allclose(ra.X_WO, rb.X_WO, atol=1e-12)
+
+
+def test_chromaticity_ignores_lambert_shading():
+    from service.tracking.tracker import point_colors
+
+    rng = np.random.default_rng(4)
+    rgb = rng.integers(40, 200, (24, 32, 3)).astype(np.uint8)
+    shaded = np.round(rgb * 0.6).astype(np.uint8)  # the same surface turned away from the light
+    u, v = rng.integers(4, 28, 50), rng.integers(4, 20, 50)
+    a, b = point_colors(rgb, u, v, "chroma", 0.0), point_colors(shaded, u, v, "chroma", 0.0)
+    assert a.shape == (50, 2) and np.abs(a - b).max() < 0.01
+    ga, gb = point_colors(rgb, u, v, "gray", 0.0), point_colors(shaded, u, v, "gray", 0.0)
+    assert np.abs(ga - gb).mean() > 0.1  # luma follows the shading
