@@ -149,6 +149,7 @@ def icp(
     w_color: float = 0.0,
     color_huber: float = 0.05,
     color_tau: float = 0.1,
+    color_rot_only: bool = False,
 ) -> IcpResult:
     """Register points P_W (N,3) to the model (Q_O, N_O) (M,3) with KD-tree ``tree`` over Q_O, from X_WO.
 
@@ -157,7 +158,7 @@ def icp(
     directions the point-to-plane terms leave unconstrained (``degenerate_map``, threshold ``degen_tau``).
     Optional intensities C_src (N,) of the source points and C_model (M,), tangent gradients G_model (M,3) of the
     model (or several channels: (N,ch), (M,ch), (M,ch,3)) (``color_gradients``) add the coloured-ICP term with weight ``w_color`` (m² per squared intensity unit,
-    relative to the point-to-plane residuals), only along the weak directions at threshold ``color_tau``."""
+    relative to the point-to-plane residuals), only along the weak directions at threshold ``color_tau`` (rotations only with ``color_rot_only``)."""
     X_OW = np.linalg.inv(X_WO)
     huber = 0.5 * dist_min
     decay = (dist_min / dist0) ** (1.0 / max(iters - 1, 1))
@@ -178,7 +179,7 @@ def icp(
         Hm = (Jp * w[:, None]).T @ Jp
         g = (Jp * w[:, None]).T @ r
         Mdeg = degenerate_map(Hm, w.sum(), p, degen_tau) if (nf >= 3 and w_feat_degen > 0) else None
-        Mcol = degenerate_map(Hm, w.sum(), p, color_tau) if use_color else None
+        Mcol = degenerate_map(Hm, w.sum(), p, color_tau, color_rot_only) if use_color else None
         if Mcol is not None:
             Cm, Gm, Cs = C_model[j[ok]], G_model[j[ok]], C_src[ok]
             if Cm.ndim == 1:  # one channel
@@ -264,15 +265,19 @@ def color_gradients(Q: np.ndarray, N: np.ndarray, C: np.ndarray, tree, k: int = 
     return d[:, 0] if one else d
 
 
-def degenerate_map(H: np.ndarray, wsum: float, p: np.ndarray, tau: float) -> np.ndarray | None:
+def degenerate_map(H: np.ndarray, wsum: float, p: np.ndarray, tau: float, rot_only: bool = False
+                   ) -> np.ndarray | None:
     """M (6,6) restricting a term to the weak directions of the point-to-plane normal matrix H (6,6) of the points
-    p (N,3) with total weight wsum (module docstring); None when no direction is weak."""
+    p (N,3) with total weight wsum (module docstring); None when no direction is weak. ``rot_only``: only the weak
+    directions that are mostly rotation (‖rotation part‖² > 1/2 in the unit-consistent z), not sliding."""
     if len(p) < 6 or wsum <= 0:
         return None
     L = float(np.sqrt(np.mean(np.sum((p - p.mean(0)) ** 2, 1)))) or 1.0
     Di = np.diag([1 / L, 1 / L, 1 / L, 1.0, 1.0, 1.0])
     lam, U = np.linalg.eigh(Di @ H @ Di)
     s = np.clip(1.0 - lam / wsum / tau, 0.0, 1.0)
+    if rot_only:
+        s = s * (np.sum(U[:3] ** 2, 0) > 0.5)
     if not np.any(s > 0):
         return None
     D = np.diag([L, L, L, 1.0, 1.0, 1.0])

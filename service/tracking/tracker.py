@@ -361,7 +361,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         if cfg.w_color <= 0 or stage not in cstages or C_src is None or m.C is None:
             return {}
         return dict(C_src=C_src, C_model=m.C, G_model=m.G, w_color=cfg.w_color, color_huber=cfg.color_huber,
-                    color_tau=cfg.color_tau)
+                    color_tau=cfg.color_tau, color_rot_only=cfg.color_rot_only)
 
     deg_kw = deg_kw_for("track")
     frng = np.random.default_rng(cfg.seed + 1)  # RANSACs of the keyframe features (own stream: rng unchanged)

@@ -87,6 +87,7 @@ class TrackingConfig:
     w_color: float = 0.0  # weight (m² per squared intensity unit; 0: off)
     color_stages: str = "track,refine,final"  # where: tracking loop, leave-one-out rounds, final pass
     color_tau: float = 0.1  # its weak-direction threshold (a lying bottle seen from one side: roll λ̂ ≈ 0.01–0.03)
+    color_rot_only: bool = False  # only the weak directions that are rotations (not a box face's sliding)
     color_huber: float = 0.05  # Huber threshold of the intensity residual (intensity in [0, 1])
     color_mode: str = "chroma"  # "gray": luma; "chroma": r, g chromaticities (unchanged by Lambert shading)
     color_blur_px: float = 1.0  # Gaussian σ (px) of the grey image the point intensities are read from

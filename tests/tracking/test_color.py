@@ -78,3 +78,17 @@ def test_chromaticity_ignores_lambert_shading():
     assert a.shape == (50, 2) and np.abs(a - b).max() < 0.01
     ga, gb = point_colors(rgb, u, v, "gray", 0.0), point_colors(shaded, u, v, "gray", 0.0)
     assert np.abs(ga - gb).mean() > 0.1  # luma follows the shading
+
+
+def test_rotation_only_map_drops_the_sliding_of_a_plane():
+    from service.tracking.geometry import degenerate_map
+
+    rng = np.random.default_rng(5)
+    P = np.c_[rng.uniform(-0.05, 0.05, (500, 2)), np.zeros(500)]
+    N = np.tile([0.0, 0.0, 1.0], (500, 1))
+    J = np.hstack([np.cross(P, N), N])
+    M = degenerate_map(J.T @ J, 500.0, P, 0.1)
+    Mr = degenerate_map(J.T @ J, 500.0, P, 0.1, rot_only=True)
+    slide, spin = np.array([0, 0, 0, 1.0, 0, 0]), np.array([0, 0, 1.0, 0, 0, 0])
+    assert np.linalg.norm(M @ slide) > 0.9 and np.linalg.norm(Mr @ slide) < 1e-9
+    assert np.linalg.norm(Mr @ spin) > 0.9  # the turn about the normal stays weak
