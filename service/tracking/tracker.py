@@ -226,6 +226,14 @@ def _better(a: IcpResult, b: IcpResult | None) -> bool:
     return (a.inlier_frac - 0.02 * a.rmse / 0.001) > (b.inlier_frac - 0.02 * b.rmse / 0.001)
 
 
+def _jump(X_a: np.ndarray, X_b: np.ndarray, dt: float, cfg: TrackingConfig) -> bool:
+    """True when going from pose X_a to X_b in dt seconds needs more than max_speed / max_rate_deg: no pushed
+    object moves so (a topple turns at ≈ 200 °/s), but a flip to a symmetric pose of a partly seen box does."""
+    dist, ang = _pose_dist(X_a, X_b)
+    dt = max(float(dt), 1e-6)
+    return dist / dt > cfg.max_speed or ang / dt > cfg.max_rate_deg
+
+
 def _pose_dist(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
     dR = A[:3, :3].T @ B[:3, :3]
     return float(np.linalg.norm(A[:3, 3] - B[:3, 3])), float(np.degrees(rotation_angle(dR)))
@@ -380,8 +388,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         # features: previous tracked frame and keyframes
         fW, fO = _feature_corr(o, obs[a], X[a], keyframes, lost=(a != i - 1))
         feat_W = feat_O = None
-        if len(fW) >= 6:
-            Xr, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng)
+        if len(fW) >= max(6, cfg.feat_min_inliers):
+            Xr, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
             if Xr is not None:
                 Xc = X_inv(Xr)  # fO = Xr fW -> Xr = X_OW
                 cands.append(Xc)
@@ -405,7 +413,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                     best = r
         X[i] = best.X_WO
         frac[i], rmse[i] = best.inlier_frac, best.rmse
-        if not _good(best, cfg):
+        if not _good(best, cfg) or _jump(X[a], X[i], session.frame_times[i] - session.frame_times[a], cfg):
             X[i] = X[a]
             continue
         tracked[i] = True
@@ -414,7 +422,15 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         dists = [_pose_dist(kf.X_WO, X[i]) for kf in keyframes]
         far = min(max(d / cfg.kf_dist, ang / cfg.kf_angle_deg) for d, ang in dists) >= 1.0
         new_frac = float(np.mean(best.nn_dist > cfg.inlier_dist))
-        if best.inlier_frac >= cfg.kf_min_inlier_frac and (far or new_frac > cfg.kf_new_frac):
+        still = True
+        if cfg.kf_still_speed is not None and far and new_frac <= cfg.kf_new_frac:
+            # a keyframe taken only for being far (no new surface) waits until the object is nearly still: a pose
+            # tracked during an impulsive motion lags (ICP from the constant-velocity prediction stops short), and a
+            # keyframe taken there shifts the model and every later frame with it (off by default)
+            dt_s = max(float(session.frame_times[i] - session.frame_times[a]), 1e-6)
+            step_m, step_deg = _pose_dist(X[a], X[i])
+            still = step_m / dt_s <= cfg.kf_still_speed and step_deg / dt_s <= cfg.kf_still_rate_deg
+        if still and best.inlier_frac >= cfg.kf_min_inlier_frac and (far or new_frac > cfg.kf_new_frac):
             near = best.nn_dist < cfg.grow_dist
             X_OW = X_inv(X[i])
             consistent = True

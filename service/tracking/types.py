@@ -61,8 +61,14 @@ class TrackingConfig:
     icp_dist_min: float = 0.006  # final correspondence radius
     inlier_dist: float = 0.008  # a point within this distance of the model is an inlier
     ransac_thr: float = 0.01
+    feat_min_inliers: int = 12  # fewer RANSAC inliers among the ORB matches: no feature candidate or terms (6 matches
+    # of a repeated texture gave a consistent wrong pose, 56° off, on a still box: strike session 511)
     min_inlier_frac: float = 0.35  # below: lost track
     max_rmse: float = 0.006  # above: lost track
+    max_speed: float = 1.5  # a pose farther than this (m/s) or
+    max_rate_deg: float = 600.0  # turned more than this (°/s) from the last tracked pose is a jump: lost track
+    # (a flip to a symmetric pose fits a partly seen box as well as the true one; strike session 511, frame 153:
+    # 103° in one frame, inlier fraction 0.98, taken as a keyframe)
     # object model
     model_voxel: float = 0.003  # voxel of the accumulated keyframe point model
     kf_angle_deg: float = 10.0  # new keyframe when this far (or kf_dist) from every keyframe
@@ -71,6 +77,11 @@ class TrackingConfig:
     kf_min_new_add: float = 0.02  # ... and at least this fraction are off-model points it adds (within grow_dist,
     # not seen through); without it, points that are never added keep the trigger on in every frame
     kf_min_inlier_frac: float = 0.5
+    # if kf_still_speed is set (m/s; 0.1 tried, off: it broke topple 703, 2.03° -> 8.8°), a frame taken only for
+    # being far (no new surface) is no keyframe while the object moves faster than it or kf_still_rate_deg (°/s):
+    # poses tracked during an impulsive motion lag (strike session 511: 8–10°) and poison the model
+    kf_still_speed: float | None = None
+    kf_still_rate_deg: float = 60.0
     grow_dist: float = 0.015  # points farther than this from the model are not added (mask noise)
     refine_rounds: int = 2  # leave-one-out keyframe refinement rounds after the bundle adjustment (0: off)
     ba_iters: int = 10  # keyframe bundle adjustment (service.tracking.posegraph) iterations (0: off)
