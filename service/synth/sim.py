@@ -202,6 +202,18 @@ class _Planner:
             a = float(np.arctan2(self.lateral[1], self.lateral[0]) + self.rng.uniform(-np.pi, np.pi))
         return np.array([np.cos(a), np.sin(a)])
 
+    def _stopped(self, path: _Path, X_WM: np.ndarray, first: bool) -> bool:
+        """The object got away (rolled or slid off): the operator stops and the robot stays where it is."""
+        if not first and np.linalg.norm(X_WM[:2, 3] - self.home_xy) > FAR_FROM_HOME:
+            path.hold(self.duration - path.t_end + 1.0)
+            return True
+        return False
+
+    def _posed_hull(self, X_WM: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+        """The object's hull vertices in W (N,3), the height of its top in W and its centre p_WM."""
+        V = self.hull @ X_WM[:3, :3].T + X_WM[:3, 3]
+        return V, float(V[:, 2].max()), X_WM[:3, 3]
+
     def plan(self, path: _Path, X_WM: np.ndarray, first: bool, initial_hold: float = 0.0) -> None:
         """Append one stroke (with its approach) to ``path``, starting at path.t_end."""
         if self.interaction == "strike":
@@ -210,14 +222,10 @@ class _Planner:
         kind = self.interaction if (first or self.interaction == "pivot") else "push"
         if kind == "topple" and any(s["kind"] == "topple" for s in self.strokes):
             kind = "push"
-        if not first and np.linalg.norm(X_WM[:2, 3] - self.home_xy) > FAR_FROM_HOME:
-            # the object got away (rolled): the operator stops and the robot stays where it is
-            path.hold(self.duration - path.t_end + 1.0)
+        if self._stopped(path, X_WM, first):
             return
-        V = self.hull @ X_WM[:3, :3].T + X_WM[:3, 3]
-        top = float(V[:, 2].max())
+        V, top, c = self._posed_hull(X_WM)
         H = top - self.table_h
-        c = X_WM[:3, 3]
         d2 = self._heading(X_WM)
         if kind in ("pivot", "topple"):
             d2 = self._thin_heading(V, X_WM[:3, 3], d2)
@@ -293,13 +301,10 @@ class _Planner:
         rate so that the command reaches the surface at a random speed in ``STRIKE_SPEED``, brakes to rest
         within ``STRIKE_BRAKE`` m, holds while the object slides free and stops under friction, then backs off. The contact point is offset sideways by up to a third of the
         object's half width (the object spins as it slides)."""
-        if not first and np.linalg.norm(X_WM[:2, 3] - self.home_xy) > FAR_FROM_HOME:
-            path.hold(self.duration - path.t_end + 1.0)
+        if self._stopped(path, X_WM, first):
             return
-        V = self.hull @ X_WM[:3, :3].T + X_WM[:3, 3]
-        top = float(V[:, 2].max())
+        V, top, c = self._posed_hull(X_WM)
         H = top - self.table_h
-        c = X_WM[:3, 3]
         d2 = self._strike_heading(X_WM)
         d = np.array([d2[0], d2[1], 0.0])
         n = np.array([-d2[1], d2[0], 0.0])
