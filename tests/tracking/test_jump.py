@@ -13,7 +13,6 @@ import numpy as np
 import pytest
 
 import service.tracking.tracker as tracker
-from service.session import load_session
 from service.tracking import TrackingConfig
 from service.tracking.geometry import IcpResult
 from service.transforms import make_X, rotation_angle, so3_exp
@@ -31,13 +30,8 @@ def test_jump_rates():
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory):
-    from service.synth import SynthSpec, make_session
-
-    spec = SynthSpec(object="baking_box", interaction="push", seed=101, preset="tiny", occlusion="heavy", noise=True,
-                     resolution=(240, 180), n_frames=24)
-    res = make_session(spec, tmp_path_factory.mktemp("jump") / "s")
-    return load_session(res.session_dir, "test")
+def session(tiny_push_session):
+    return tiny_push_session(24)
 
 
 def test_flip_not_tracked_nor_keyframe(session, monkeypatch):

@@ -13,19 +13,13 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from service.session import load_session
 from service.tracking import TrackingConfig
 from service.tracking.tracker import track
 
 
 @pytest.fixture(scope="module")
-def session(tmp_path_factory):
-    from service.synth import SynthSpec, make_session
-
-    spec = SynthSpec(object="baking_box", interaction="push", seed=101, preset="tiny", occlusion="heavy", noise=True,
-                     resolution=(240, 180), n_frames=32)
-    res = make_session(spec, tmp_path_factory.mktemp("kf") / "s")
-    return load_session(res.session_dir, "test")
+def session(tiny_push_session):
+    return tiny_push_session(32)
 
 
 def _cfg(**kw) -> TrackingConfig:
