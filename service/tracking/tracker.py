@@ -41,7 +41,7 @@ from typing import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from service.tracking.geometry import IcpResult, backproject, icp, pixel_normals, ransac_rigid
+from service.tracking.geometry import IcpResult, backproject, color_gradients, icp, pixel_normals, ransac_rigid
 from service.tracking.types import TrackingConfig
 from service.transforms import X_inv, make_X, rotation_angle, so3_exp, so3_log
 
@@ -101,8 +101,6 @@ class ObjectModel:
         tree = cKDTree(Q)
         if colors is None or any(c is None for c in colors):
             return ObjectModel(voxel, Q, Nm, tree)
-        from service.tracking.geometry import color_gradients
-
         Cc = np.concatenate(colors)
         Cm = np.zeros((len(cnt),) + Cc.shape[1:])
         np.add.at(Cm, inv, Cc)
