@@ -356,12 +356,12 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     n_feat = np.zeros((N, 2), int)
 
     icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist)
-    stages = {x.strip() for x in cfg.degen_stages.split(",")}
+    stages = cfg.stage_set("degen_stages")
 
     def deg_kw_for(stage: str) -> dict:
         return dict(w_feat_degen=cfg.w_feat_degen if stage in stages else 0.0, degen_tau=cfg.degen_tau)
 
-    cstages = {x.strip() for x in cfg.color_stages.split(",")}
+    cstages = cfg.stage_set("color_stages")
 
     def col_kw(stage: str, C_src: np.ndarray | None, m: "ObjectModel") -> dict:
         if cfg.w_color <= 0 or stage not in cstages or C_src is None or m.C is None:
@@ -533,7 +533,7 @@ def _bundle_adjust(keyframes: list[Keyframe], cfg: TrackingConfig, rng: np.rando
     from service.tracking.posegraph import bundle_adjust
 
     feats = {}
-    ba_degen = cfg.w_feat_degen if "ba" in {x.strip() for x in cfg.degen_stages.split(",")} else 0.0
+    ba_degen = cfg.w_feat_degen if "ba" in cfg.stage_set("degen_stages") else 0.0
     if cfg.ba_features or ba_degen > 0:
         for a in range(len(keyframes)):
             for b in range(a + 1, len(keyframes)):

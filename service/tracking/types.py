@@ -11,6 +11,10 @@ from service.sdf.types import SdfConfig, SdfGrid
 from service.session.types import Session
 
 
+_STAGES = {"degen_stages": frozenset({"track", "ba", "refine", "final"}),
+           "color_stages": frozenset({"track", "refine", "final"})}
+
+
 @dataclass(frozen=True)
 class TrackingInputs:
     session: Session
@@ -120,6 +124,24 @@ class TrackingConfig:
     visible_samples: int = 3000  # samples on the convex hull of the visible mesh (plus its vertices)
     visible_depth_tol: float = 0.01  # |z_render − z_obs| for the visibility check
     visible_frames: int = 30
+
+    def __post_init__(self) -> None:
+        if self.color_mode not in ("gray", "chroma"):
+            raise ValueError(f"TrackingConfig.color_mode must be 'gray' or 'chroma', not {self.color_mode!r}")
+        self.stage_set("degen_stages")
+        self.stage_set("color_stages")
+        for name in ("w_feat_degen", "w_color", "max_speed", "max_rate_deg", "kf_min_new_add"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+
+    def stage_set(self, name: str) -> frozenset[str]:
+        """The stages named by ``degen_stages`` or ``color_stages`` (comma-separated; ValueError for an unknown one)."""
+        allowed = _STAGES[name]
+        got = frozenset(x.strip() for x in getattr(self, name).split(",") if x.strip())
+        if not got <= allowed:
+            raise ValueError(f"TrackingConfig.{name}: unknown stage(s) {sorted(got - allowed)}; "
+                             f"expected a comma-separated subset of {sorted(allowed)}")
+        return got
 
     @classmethod
     def fast(cls) -> "TrackingConfig":
