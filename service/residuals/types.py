@@ -140,6 +140,17 @@ class ResidualConfig:
     launch_max_s: float = 1.0  # longest launch block, s
     robot_smooth_s: float = 0.04  # Savitzky-Golay window on the measured sphere path before the rollouts, s (0: off)
 
+    def __post_init__(self) -> None:
+        for name in ("max_base_error_rel_learned", "launch_speed", "launch_max_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"ResidualConfig.{name} must be > 0, not {getattr(self, name)!r}")
+        for name in ("launch_rest_speed", "launch_lead", "robot_smooth_s"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"ResidualConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        if not self.launch_rest_speed < self.launch_speed:
+            raise ValueError(f"ResidualConfig.launch_rest_speed ({self.launch_rest_speed}) must be below "
+                             f"launch_speed ({self.launch_speed}): a launch starts at rest")
+
     @classmethod
     def fast(cls) -> "ResidualConfig":
         return cls(fit_maxiter=16, n_bootstrap=500, max_train_segments=6, max_heldout_segments=64, max_effects=2,
