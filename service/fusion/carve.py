@@ -8,12 +8,21 @@ conservative at silhouettes (pose and mask errors of a few pixels), D is the min
 in at least ``min_frac`` of the frames in which it is observable.
 
 ``free_space_votes`` -> (n_free (P,), n_observed (P,)) over the given frames.
+
+``carve_grid`` applies the same test to the voxels of a fitted SDF that lie inside or near its surface
+(S < ``band``): F = the voxels found empty. The returned field is the intersection of the object with the
+complement of F, S' = max(S, d_F), d_F the signed distance to F's boundary (positive inside F, from a Euclidean
+distance transform, in voxels − ½): the fitted surface where the camera saw nothing through it, F's boundary
+where it did. The fit's depth terms can leave matter there: the near-surface band asserts S < 0 up to τ
+*behind* every observed point (weight 3000), which past a silhouette edge is outside the object, and the
+empty-space term that other views hold against it weighs 1 (docs/fusion.md).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from service.sdf.types import SdfGrid
 from service.transforms import X_inv
 
 
@@ -62,3 +71,43 @@ def free_space_votes(
         n_obs += ok
         n_free += ok & (z < d - margin)
     return n_free, n_obs
+
+
+def carve_grid(
+    grid: SdfGrid,
+    depths: list[np.ndarray],
+    X_OC: list[np.ndarray],
+    K: np.ndarray,
+    *,
+    margin: float = 0.01,
+    radius_px: int = 3,
+    min_frac: float = 0.2,
+    min_frames: int = 1,
+    band: float | None = None,
+) -> tuple[SdfGrid, int]:
+    """The grid with the observed free space carved out, and the number of voxels found free.
+
+    A voxel with S < ``band`` (default one voxel) is free when it lies in observed empty space
+    (``free_space_votes``) in at least ``min_frames`` frames and in at least ``min_frac`` of the frames in which
+    it projects onto a reading. ``grid.values`` (nx,ny,nz); frames as for ``free_space_votes``."""
+    from scipy import ndimage
+
+    from service.sdf.grid import grid_points
+
+    vals = np.asarray(grid.values, np.float32)
+    band = float(grid.voxel) if band is None else float(band)
+    cand = vals.reshape(-1) < band
+    if not cand.any() or not len(depths):
+        return grid, 0
+    P = grid_points(grid.origin_O, grid.voxel, grid.shape).reshape(-1, 3)[cand]
+    n_free, n_obs = free_space_votes(P, depths, X_OC, K, margin=margin, radius_px=radius_px)
+    free = np.zeros(vals.size, bool)
+    free[cand] = (n_free >= max(1, int(min_frames))) & (n_free >= min_frac * n_obs)
+    n = int(free.sum())
+    if n == 0:
+        return grid, 0
+    F = free.reshape(vals.shape)
+    d_in = ndimage.distance_transform_edt(F)  # voxels to the nearest non-free voxel
+    d_out = ndimage.distance_transform_edt(~F)  # voxels to the nearest free voxel
+    d_F = (float(grid.voxel) * np.where(F, d_in - 0.5, 0.5 - d_out)).astype(np.float32)
+    return SdfGrid(origin_O=grid.origin_O, voxel=grid.voxel, values=np.maximum(vals, d_F), observed=grid.observed), n

@@ -26,7 +26,7 @@ from typing import Callable
 import numpy as np
 
 from service.errors import StageFailed
-from service.fusion.carve import free_space_votes
+from service.fusion.carve import carve_grid, free_space_votes
 from service.fusion.losses import PhysibleLosses
 from service.fusion.samples import hyperplane_anchors, hyperplane_samples, inside_box, ray_samples
 from service.fusion.types import FusionConfig, FusionInputs, FusionOutputs
@@ -216,11 +216,14 @@ def fuse(
     progress: Progress = None,
     halfspace_O: np.ndarray | None = None,
     table_mask: np.ndarray | None = None,
+    free_space: tuple[list, list, np.ndarray] | None = None,
 ) -> FusionOutputs:
     """The fusion pass on prepared rays (no session I/O); see the module docstring. ``halfspace_O``: optional
     plane (n, b) in O; where ``n·p + b > 0`` is outside the object (space below the table at frame 0).
     ``table_mask`` (P,) bool: physible points that are table contacts; with ``cfg.table_points == "planes"``
-    only their supporting planes are used (hyperplane anchors), not the points themselves."""
+    only their supporting planes are used (hyperplane anchors), not the points themselves.
+    ``free_space`` = (depths [(H,W)], X_OC [(4,4)], K (3,3)): frames whose observed empty space is carved out of
+    the fitted grid when ``cfg.carve_free_space`` (``service.fusion.carve.carve_grid``)."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(cfg.seed)
     vis = rays.surface_points_O
@@ -285,6 +288,12 @@ def fuse(
     grid = fit_sdf(rays, sdf_cfg, init=init, extra_losses=[losses], bounds_O=bounds, progress=fit_progress,
                    halfspace_O=halfspace_O)
     t_fit = time.perf_counter() - t0 - t_prep
+    n_carved = 0
+    if cfg.carve_free_space and free_space is not None and len(free_space[0]):
+        grid, n_carved = carve_grid(grid, free_space[0], free_space[1], free_space[2], margin=cfg.carve_margin,
+                                    radius_px=cfg.carve_radius_px, min_frac=cfg.carve_min_frac,
+                                    min_frames=cfg.carve_min_frames)
+    t_carve = time.perf_counter() - t0 - t_prep - t_fit
     mesh = extract_mesh(grid)
     if mesh.is_empty:
         raise StageFailed("fusion", "the fused SDF has no zero level set inside its grid")
@@ -304,6 +313,9 @@ def fuse(
         "volume_m3": float(tm.volume),
         "time_prepare_s": t_prep,
         "time_fit_s": t_fit,
+        "carved_voxels": float(n_carved),
+        "carved_frames": float(len(free_space[0]) if (cfg.carve_free_space and free_space is not None) else 0),
+        "time_carve_s": t_carve,
         **{f"final_loss_{k}": v for k, v in losses.last.items()},
     }
     if progress is not None:
@@ -342,6 +354,9 @@ def run(inputs: FusionInputs, cfg: FusionConfig, *, progress: Progress = None) -
     checked = np.zeros(n, bool)
     for _, _, i, resid in frames:
         checked[i] = np.isfinite(resid) and resid <= cfg.pose_residual_max
+    # free space of the pose-checked frames is carved out of the fitted grid (a wrong pose would carve the object)
+    carve_frames = ([f[0] for f in frames if checked[f[2]]], [f[1] for f in frames if checked[f[2]]],
+                    np.asarray(inputs.session.K, float))
     del frames
     n_pen = 0
     if cfg.drop_penetrating and len(P):  # contact points the tracked motion would push through table or robot
@@ -366,6 +381,7 @@ def run(inputs: FusionInputs, cfg: FusionConfig, *, progress: Progress = None) -
         progress=progress,
         halfspace_O=halfspace,
         table_mask=table,
+        free_space=carve_frames,
     )
     out.metrics["time_rays_s"] = t_rays
     out.metrics["physible_free_dropped"] = float(n_free)

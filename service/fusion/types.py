@@ -127,6 +127,13 @@ class FusionConfig:
     free_margin: float = 0.01  # m in front of the (window-minimum) depth reading
     free_radius_px: int = 3  # window radius of the minimum depth
     free_min_frac: float = 0.2  # fraction of the frames observing a point that must find it empty
+    # the same test on the fitted grid: voxels the camera saw through (pose-checked frames) are outside the fused
+    # shape (service.fusion.carve.carve_grid; docs/fusion.md, "Free space carved out of the fused SDF")
+    carve_free_space: bool = True
+    carve_margin: float = 0.01  # m in front of the (window-minimum) depth reading
+    carve_radius_px: int = 3
+    carve_min_frac: float = 0.2  # of the frames that observe a voxel
+    carve_min_frames: int = 2
 
     def __post_init__(self):
         if self.init not in ("visible", "hull"):

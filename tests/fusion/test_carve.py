@@ -81,3 +81,69 @@ def test_penetrating_points_below_the_table_or_inside_the_end_effector():
     # untracked frames do not count; without the robot only the table does
     assert penetrating(P, X_WO, np.array([True, False]), 0.0, p_WE, 0.02, tol=0.003).tolist() == [False, True, False, True, False]
     assert penetrating(P, X_WO, np.array([True, True]), 0.0, None, 0.0, tol=0.003).tolist() == [False, True, True, False, False]
+
+
+def _box_with_fin_grid(voxel: float = 0.004):
+    """SDF grid (in O) of the scenes' box with a thin fin sticking out of its +x face: 2.4 cm long, 4 mm thick."""
+    from service.sdf.grid import grid_points
+    from service.sdf.types import SdfGrid
+    from tests.fusion.scenes import box_sdf
+
+    origin = np.array([-0.07, -0.06, -0.05])
+    shape = (36, 31, 26)
+    P = grid_points(origin, voxel, shape).reshape(-1, 3)
+    fin = box_sdf(P - [0.052, 0.0, 0.0], half=np.array([0.012, 0.002, 0.012]))
+    S = np.minimum(box_sdf(P), fin).reshape(shape).astype(np.float32)
+    return SdfGrid(origin_O=origin, voxel=voxel, values=S)
+
+
+def _render(eye, W=80, H=60, wall=1.0):
+    """Depth (H,W) of the bare box (no fin) in front of a wall at camera depth ``wall``, and X_OC."""
+    from tests.fusion.scenes import look_at, ray_box
+
+    X = look_at(np.asarray(eye, float))
+    Kc = np.array([[70.0, 0, (W - 1) / 2], [0, 70.0, (H - 1) / 2], [0, 0, 1]])
+    uu, vv = np.meshgrid(np.arange(W, dtype=float), np.arange(H, dtype=float))
+    d_C = np.stack([uu.ravel(), vv.ravel(), np.ones(uu.size)], 1) @ np.linalg.inv(Kc).T
+    t = ray_box(np.repeat(X[None, :3, 3], len(d_C), 0), d_C @ X[:3, :3].T)
+    return np.where(np.isfinite(t), t, wall).reshape(H, W).astype(np.float32), X, Kc
+
+
+def test_carve_grid_removes_a_fin_the_camera_sees_through_and_keeps_the_box():
+    from service.fusion.carve import carve_grid
+    from service.sdf import extract_mesh
+    from tests.fusion.scenes import box_sdf
+
+    g = _box_with_fin_grid()
+    frames = [_render(e) for e in ([0.35, -0.30, 0.25], [0.40, 0.25, 0.30], [0.05, -0.45, 0.20])]
+    out, n = carve_grid(g, [f[0] for f in frames], [f[1] for f in frames], frames[0][2], margin=0.006,
+                        radius_px=1, min_frac=0.2)
+    assert n > 0
+    before, after = extract_mesh(g).to_trimesh(), extract_mesh(out).to_trimesh()
+    assert before.bounds[1, 0] > 0.06  # the fin reaches 6.4 cm
+    # carved back to the +x face (4 cm), up to the margin: within 6 mm in front of a reading is no evidence
+    assert after.bounds[1, 0] < 0.04 + 0.006 + g.voxel
+    assert abs(after.volume - 0.08 * 0.06 * 0.04) < 0.1 * 0.08 * 0.06 * 0.04
+    # no voxel of the true box was carved: S' = S there
+    from service.sdf.grid import grid_points
+
+    P = grid_points(g.origin_O, g.voxel, g.shape).reshape(-1, 3)
+    inside = box_sdf(P) < -g.voxel
+    assert np.array_equal(out.values.reshape(-1)[inside], g.values.reshape(-1)[inside])
+    # the carved field stays a distance-like field: ≥ 0 on the fin, equal to S away from it
+    fin = box_sdf(P - [0.052, 0.0, 0.0], half=np.array([0.012, 0.002, 0.012])) < 0
+    assert np.all(out.values.reshape(-1)[fin & (P[:, 0] > 0.04 + 0.006 + g.voxel)] > 0)
+
+
+def test_carve_grid_keeps_what_no_camera_saw_through():
+    from service.fusion.carve import carve_grid
+
+    g = _box_with_fin_grid()
+    # a camera behind the −x face: the box hides the fin; and one far camera with no reading at all
+    d, X, Kc = _render([-0.45, 0.0, 0.05])
+    out, n = carve_grid(g, [d, np.zeros_like(d)], [X, X], Kc, margin=0.006, radius_px=1, min_frac=0.2)
+    assert n == 0 and out is g
+    # two frames needed, one given: nothing carved
+    d, X, Kc = _render([0.35, -0.30, 0.25])
+    out, n = carve_grid(g, [d], [X], Kc, margin=0.006, radius_px=1, min_frac=0.2, min_frames=2)
+    assert n == 0
