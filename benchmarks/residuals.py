@@ -120,9 +120,11 @@ def synthetic(args) -> None:
     from tests.residuals.lab import cube_model as lab_cube, simulate_tosses
 
     cases = [({}, None), ({"gravity_scale": 0.95}, "gravity_scale"), ({"restitution": 0.5}, "restitution"),
-             ({"table_offset": 0.003}, "table_offset"), ({"linear_damping": 1.5}, "linear_damping")]
-    cands = ("gravity_scale", "restitution", "table_offset", "linear_damping")
-    cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, max_train_segments=10)
+             ({"table_offset": 0.003}, "table_offset"), ({"linear_damping": 1.5}, "linear_damping"),
+             ({"angular_damping": 2.0}, "angular_damping")]
+    cands = ("gravity_scale", "restitution", "table_offset", "linear_damping", "angular_damping")
+    # 12 training blocks and 24 evaluations per fit, as tests/residuals/test_recover_angular_damping.py
+    cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, max_train_segments=12, fit_maxiter=24)
     rows = []
     if args.cases:
         cases = [c for c in cases if (c[1] or "none") in args.cases]
@@ -135,6 +137,8 @@ def synthetic(args) -> None:
             rows.append((hidden, seed, ok, out.accepted, val, out.error_before["scalar_m"], out.error_after["scalar_m"]))
             print(f"hidden {json.dumps(hidden):28s} seed {seed}: accepted {list(out.accepted)} {json.dumps(out.effects)} "
                   f"held-out {out.error_before['scalar_m'] * 1e3:.3f} -> {out.error_after['scalar_m'] * 1e3:.3f} mm "
+                  f"(position {out.error_before['pos_err_m'] * 1e3:.3f} -> {out.error_after['pos_err_m'] * 1e3:.3f} mm, "
+                  f"rotation {out.error_before['rot_err_deg']:.3f} -> {out.error_after['rot_err_deg']:.3f} deg) "
                   f"{'OK' if ok else 'WRONG'}", flush=True)
     print(f"toss cases, correct decisions: {sum(r[2] for r in rows)}/{len(rows)}")
     if args.no_pushing:
