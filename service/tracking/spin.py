@@ -11,7 +11,8 @@ axis, so the screw ξ = (ω, v) with ω = a (unit axis) and v = c × a (c on the
 every point. The shape counts as a body of revolution when the smallest normalised eigenvalue λ̂_1 (unit-consistent
 scaling, ≈ 1/3 for a direction every point fixes) is below ``spin_tau``, at most ``spin_sep`` times the next one
 (a squat egg's noisy model has two nearly equal weak rotations, 0.021 and 0.029, whose eigenvectors mix: its
-estimated axis was 20° off) and its eigenvector is mostly rotation; then a = ω/|ω|, c = ω × v / |ω|². Boxes, prisms and planes (weak directions, if any, are slides) are left alone.
+estimated axis was 20° off) and its eigenvector is mostly rotation; then a = ω/|ω|, c = ω × v / |ω|². Boxes,
+prisms and planes (weak directions, if any, are slides) are left alone.
 
 Spin per frame (a one-parameter loop closure). With S(θ) the rotation by θ about (a, c) in O, the corrected pose
 is X_WO(i) S(θ_i). ORB keypoints are taken only ``spin_border_px`` inside the object mask (away from the
@@ -19,7 +20,10 @@ silhouette and occluder edges, so that they move with the surface). A keypoint p
 of an anchor frame j (already corrected) gives, in O, p_O = X_WO(i)⁻¹ p_W and q_O = X_WO(j)⁻¹ q_W; when their
 radius about the axis and height along it agree (within ``spin_tol``), θ = φ(p_O) − φ(q_O) (azimuths about a).
 θ_i is the mode of these votes (the largest set within ±``spin_inlier_deg``, then its median), accepted with at
-least ``spin_min_votes`` votes. Anchors: frame 0 (θ = 0 by definition) and every frame accepted so far; frame i is
+least ``spin_min_votes`` votes. Only votes within ``max_jump_deg`` (15°, widened after frames without an estimate)
+of the previous frame's θ count: the synthetic lab's box-projected texture repeats, mirrored, every 90° around a
+body of revolution, and ORB (rotation-invariant) matches the mirrored corners — without the window a frame of the
+development bottle 521 took an 88° flip. Anchors: frame 0 (θ = 0 by definition) and every frame accepted so far; frame i is
 matched against frame 0, the latest anchors and a few older ones spread over the session, so that a frame that
 sees surface visible before is tied to it directly, and a frame that sees new surface is tied through its
 neighbours. Frames without an accepted θ take it interpolated from the accepted ones (held at the ends); θ is
@@ -156,7 +160,7 @@ def vote_mode(theta: np.ndarray, half_width: float) -> tuple[float, int]:
 
 def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, Q: np.ndarray, N: np.ndarray,
                  *, tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
-                 n_recent: int = 3, n_spread: int = 4) -> SpinResult:
+                 n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0) -> SpinResult:
     """Spin correction θ (N,) of the poses X_WO (N,4,4) of a body of revolution (module docstring) from each
     frame's interior features ``feats[i] = (points (F,3) in W, descriptors (F,32) or None)``
     (``interior_features``); X_WO is not changed (apply with ``apply_spin``). Q (M,3), N (M,3): the final model
@@ -174,18 +178,21 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
         kp, des = feats[i]
         if des is None or len(kp) < min_votes:
             continue
-        older = anchors[:-n_recent] if len(anchors) > n_recent else []
+        older = [j for j in anchors[:-n_recent] if j != 0]
         spread = [older[k] for k in np.unique(np.linspace(0, len(older) - 1, n_spread).astype(int))] if older else []
         cand = sorted(set([0] + spread + anchors[-n_recent:]))
+        prev = anchors[-1]
+        win = np.radians(max_jump_deg) * (1 + (i - prev - 1) / 5)  # wider after frames without an estimate
         th_all = []
         for j in cand:
             kq, dq = feats[j]
             m = match(des, dq)
             if len(m) == 0:
                 continue
-            th_all.append(spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], Xc[j], a, c, tol))
-        th = np.concatenate(th_all) if th_all else np.zeros(0)
-        t, cnt = vote_mode(th, half)
+            th = spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], Xc[j], a, c, tol)
+            th = theta[prev] + np.angle(np.exp(1j * (th - theta[prev])))
+            th_all.append(th[np.abs(th - theta[prev]) <= win])
+        t, cnt = vote_mode(np.concatenate(th_all) if th_all else np.zeros(0), half)
         if cnt >= min_votes:
             theta[i], votes[i] = t, cnt
             Xc[i] = X_WO[i] @ spin_matrix(a, c, t)

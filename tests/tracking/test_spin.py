@@ -144,3 +144,12 @@ def test_textureless_spin_unobservable_poses_kept():
     r = spin_closure(_feats(s), X, Q, N, **KW)
     assert r.is_revolution and not r.observable
     assert np.array_equal(apply_spin(X, r), X)
+
+
+def test_config_refuses_bad_spin_settings():
+    from service.tracking import TrackingConfig
+
+    for bad in ({"spin_min_votes": 0}, {"spin_tau": -0.1}, {"spin_smooth": 0}):
+        with pytest.raises(ValueError):
+            TrackingConfig(**bad)
+    assert not TrackingConfig().spin_closure
