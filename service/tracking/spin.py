@@ -191,18 +191,19 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
                 continue
             th = spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], Xc[j], a, c, tol)
             th = theta[prev] + np.angle(np.exp(1j * (th - theta[prev])))
-            th_all.append(th[np.abs(th - theta[prev]) <= win])
+            th = th[np.abs(th - theta[prev]) <= win]
+            th_all.append(th)
         t, cnt = vote_mode(np.concatenate(th_all) if th_all else np.zeros(0), half)
         if cnt >= min_votes:
-            theta[i], votes[i] = t, cnt
-            Xc[i] = X_WO[i] @ spin_matrix(a, c, t)
+            theta[i] = theta[prev] + np.angle(np.exp(1j * (t - theta[prev])))
+            votes[i] = cnt
+            Xc[i] = X_WO[i] @ spin_matrix(a, c, theta[i])
             anchors.append(i)
     ok = votes > 0
     ok[0] = True
     observable = int(np.sum(votes > 0)) > 0
     idx = np.nonzero(ok)[0]
-    un = np.unwrap(theta[idx])
-    full = np.interp(np.arange(n), idx, un)
+    full = np.interp(np.arange(n), idx, theta[idx])
     if smooth > 1:
         from scipy.ndimage import median_filter
 
