@@ -43,10 +43,10 @@ from scipy.spatial import cKDTree
 
 from service.tracking.geometry import IcpResult, backproject, color_gradients, icp, pixel_normals, ransac_rigid
 from service.tracking.types import TrackingConfig
+from service.transforms import X_inv, make_X, rotation_angle, so3_exp, so3_log
 
 if TYPE_CHECKING:
     from service.tracking.spin import SpinResult
-from service.transforms import X_inv, make_X, rotation_angle, so3_exp, so3_log
 
 Progress = Callable[[float, str], None] | None
 
