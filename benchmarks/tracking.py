@@ -151,7 +151,8 @@ def run_one(kind: str, path: Path, overrides: dict | None = None) -> dict:
     rss_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
     res = {"session": s.name, "frames": s.n_frames, "wall_s": wall, "cpu_s": cpu, "peak_rss_gb": rss_gb,
            "tracked": float(out.tracked.mean()), "visible_points": len(out.visible_points_O),
-           "load_avg": os.getloadavg()[0], "marks_s": marks}
+           "load_avg": os.getloadavg()[0], "marks_s": marks,
+           "spin": None if out.spin_axis_O is None else ("observable" if out.spin_observable else "unobservable")}
     if kind == "synth":
         gt = np.loadtxt(path / "ground_truth" / "poses.csv", delimiter=",", skiprows=1)
         X_WG = xyzquat_to_pose(gt[:, 1:8])
@@ -235,6 +236,7 @@ def main() -> None:
                   f"rot med {r['rot_med_deg']:.2f}° max {r['rot_max_deg']:.2f}° | "
                   f"trans med {r['trans_med_mm']:.2f} max {r['trans_max_mm']:.2f} mm | surface {r['surface_mean_mm']:.2f} mm "
                   f"(all vertices {r['surface_all_mean_mm']:.2f}, V {r['V_mean_mm']:.2f}) | tracked {r['tracked']:.2f} | "
+                  + (f"body of revolution, spin {r['spin']} | " if r.get("spin") else "") +
                   f"wall {r['wall_s']:.1f} s, CPU {r['cpu_s']:.1f} s, {r['peak_rss_gb']:.2f} GB (load {r['load_avg']:.1f}; "
                   f"cumulative wall s {_m(r)})")
         else:

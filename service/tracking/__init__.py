@@ -66,4 +66,6 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
         visible_mesh=mesh,
         visible_points_O=V,
         frames_lost=int((~tr.tracked).sum()),
+        spin_axis_O=tr.spin.axis_O if tr.spin is not None and tr.spin.is_revolution else None,
+        spin_observable=tr.spin.observable if tr.spin is not None and tr.spin.is_revolution else None,
     )

@@ -36,7 +36,7 @@ O: origin at the centroid of frame 0's object points in W, axes parallel to W (d
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -44,6 +44,9 @@ from scipy.spatial import cKDTree
 from service.tracking.geometry import IcpResult, backproject, color_gradients, icp, pixel_normals, ransac_rigid
 from service.tracking.types import TrackingConfig
 from service.transforms import X_inv, make_X, rotation_angle, so3_exp, so3_log
+
+if TYPE_CHECKING:
+    from service.tracking.spin import SpinResult
 
 Progress = Callable[[float, str], None] | None
 
@@ -58,6 +61,7 @@ class FrameObs:
     desc: np.ndarray | None  # (F,32) uint8 ORB descriptors
     n_mask: int
     C: np.ndarray | None = None  # (N,) intensities in [0, 1] of P_W (colour term on)
+    spin_feats: tuple[np.ndarray, np.ndarray | None] | None = None  # interior keypoints (spin closure on)
 
 
 @dataclass
@@ -176,7 +180,13 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
                 above = kw[:, 2] > session.table_height + cfg.table_clearance
                 kp_W = kw[above]
                 desc = des[good][above]
-    return FrameObs(P_W, N_W, kp_W, desc, n_mask, C)
+    spin_feats = None
+    if cfg.spin_closure and n_mask > 0:
+        from service.tracking.spin import interior_features
+
+        spin_feats = interior_features(cv2.cvtColor(session.rgb(i), cv2.COLOR_RGB2GRAY), depth, mask, K, X_WC,
+                                       cfg.spin_border_px, cfg.spin_features)
+    return FrameObs(P_W, N_W, kp_W, desc, n_mask, C, spin_feats)
 
 
 def point_colors(rgb: np.ndarray, u: np.ndarray, v: np.ndarray, mode: str, blur_px: float) -> np.ndarray:
@@ -301,6 +311,7 @@ class TrackResult:
     carver: FreeSpace | None = None
     kf_log: list[dict] = field(default_factory=list)  # per keyframe candidate: index, far, new_frac, added, accepted
     n_feat: np.ndarray | None = None  # (N,2) feature correspondences used per frame: tracking, final pass
+    spin: "SpinResult | None" = None  # spin closure of a body of revolution (cfg.spin_closure)
 
 
 def track(session, cfg: TrackingConfig, progress: Progress = None) -> TrackResult:
@@ -499,8 +510,25 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
 
             o0 = observe(session, 0, _replace(cfg, max_points=cfg.regauge_points), rng)  # dense: one frame sets O
             model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw)
+    spin = None
+    if cfg.spin_closure:
+        _report(progress, 0.8, "spin closure")
+        spin = _spin_closure(obs, X, model, cfg)
     X = interpolate_untracked(X, tracked)
-    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat)
+    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin)
+
+
+def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig) -> "SpinResult":
+    """Re-estimate the spin about the symmetry axis of a body of revolution (``service.tracking.spin``) and apply
+    it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture."""
+    from service.tracking.spin import apply_spin, spin_closure
+
+    empty = (np.zeros((0, 3)), None)
+    feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
+    res = spin_closure(feats, X, model.Q, model.N, tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
+                       min_votes=cfg.spin_min_votes, smooth=cfg.spin_smooth, match=_match, sep=cfg.spin_sep)
+    X[:] = apply_spin(X, res)
+    return res
 
 
 def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], carver: "FreeSpace | None",

@@ -31,6 +31,11 @@ class TrackingOutputs:
     visible_mesh: Mesh  # marching cubes of sdf, frame O
     visible_points_O: np.ndarray  # (K,3) the visible set V (hull points that pass the visibility check)
     frames_lost: int
+    # spin closure (TrackingConfig.spin_closure): None when off or the shape is not a body of revolution; else the
+    # symmetry axis in O (3,) and whether the texture let the spin about it be measured (False: textureless, the
+    # spin is unobservable and the poses keep the tracker's, whose rotation about the axis is then arbitrary)
+    spin_axis_O: np.ndarray | None = None
+    spin_observable: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -124,15 +129,31 @@ class TrackingConfig:
     visible_samples: int = 3000  # samples on the convex hull of the visible mesh (plus its vertices)
     visible_depth_tol: float = 0.01  # |z_render − z_obs| for the visibility check
     visible_frames: int = 30
+    # spin closure of a body of revolution (service.tracking.spin): the rotation about the symmetry axis, which the
+    # geometry cannot see, re-estimated per frame from ORB keypoints well inside the mask matched against frame 0
+    # and earlier corrected frames; only when the final model's weakest direction is a rotation (λ̂ < spin_tau)
+    spin_closure: bool = False
+    spin_tau: float = 0.03  # λ̂ below which the model counts as a body of revolution (1/3: fully constrained)
+    spin_sep: float = 0.5  # ... and at most this times the next eigenvalue (one weak direction, not a near-sphere)
+    spin_border_px: int = 8  # keypoints at least this far inside the object mask (silhouette/occluder edges)
+    spin_features: int = 400  # ORB keypoints per frame for it
+    spin_tol: float = 0.006  # radius/height (m) about the axis within which a match votes
+    spin_inlier_deg: float = 3.0  # half width of the vote window
+    spin_min_votes: int = 8  # fewer votes: the frame's spin is interpolated from its neighbours
+    spin_smooth: int = 5  # median filter (frames) of the spin correction
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
             raise ValueError(f"TrackingConfig.color_mode must be 'gray' or 'chroma', not {self.color_mode!r}")
         self.stage_set("degen_stages")
         self.stage_set("color_stages")
-        for name in ("w_feat_degen", "w_color", "max_speed", "max_rate_deg", "kf_min_new_add"):
+        for name in ("w_feat_degen", "w_color", "max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
+                     "spin_border_px", "spin_tol", "spin_inlier_deg"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        for name in ("spin_features", "spin_min_votes", "spin_smooth"):
+            if not getattr(self, name) >= 1:
+                raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages`` or ``color_stages`` (comma-separated; ValueError for an unknown one)."""

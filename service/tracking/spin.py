@@ -1,0 +1,219 @@
+"""Spin closure for bodies of revolution: the rotation about the symmetry axis fixed by texture against early views.
+
+A body of revolution turned about its own axis leaves its surface, hence every point-to-plane residual, unchanged:
+ICP cannot see that spin, only the texture can. The tracking loop matches ORB features against the previous frame
+and the latest keyframes, so a spin error made once (keypoints at the silhouette or an occluder edge follow the
+outline, not the surface) is carried on. This pass ties the spin of every frame to frame 0, which defines O.
+
+Axis. The weak direction of the point-to-plane normal matrix of the final model, H = Σ JᵀJ, J = [p × n, n]
+(``geometry.degeneracy``; Zhang, Kaess & Singh 2016): for a surface of revolution every normal line meets the
+axis, so the screw ξ = (ω, v) with ω = a (unit axis) and v = c × a (c on the axis) gives n·(ω × p + v) = 0 for
+every point. The shape counts as a body of revolution when the smallest normalised eigenvalue λ̂_1 (unit-consistent
+scaling, ≈ 1/3 for a direction every point fixes) is below ``spin_tau``, at most ``spin_sep`` times the next one
+(a squat egg's noisy model has two nearly equal weak rotations, 0.021 and 0.029, whose eigenvectors mix: its
+estimated axis was 20° off) and its eigenvector is mostly rotation; then a = ω/|ω|, c = ω × v / |ω|². Boxes,
+prisms and planes (weak directions, if any, are slides) are left alone.
+
+Spin per frame (a one-parameter loop closure). With S(θ) the rotation by θ about (a, c) in O, the corrected pose
+is X_WO(i) S(θ_i). ORB keypoints are taken only ``spin_border_px`` inside the object mask (away from the
+silhouette and occluder edges, so that they move with the surface). A keypoint p of frame i matched to a keypoint q
+of an anchor frame j (already corrected) gives, in O, p_O = X_WO(i)⁻¹ p_W and q_O = X_WO(j)⁻¹ q_W; when their
+radius about the axis and height along it agree (within ``spin_tol``), θ = φ(p_O) − φ(q_O) (azimuths about a).
+θ_i is the mode of these votes (the largest set within ±``spin_inlier_deg``, then its median), accepted with at
+least ``spin_min_votes`` votes. Only votes within ``max_jump_deg`` (15°, widened after frames without an estimate)
+of the previous frame's θ count: the synthetic lab's box-projected texture repeats, mirrored, every 90° around a
+body of revolution, and ORB (rotation-invariant) matches the mirrored corners — without the window a frame of the
+development bottle 521 took an 88° flip. Anchors: frame 0 (θ = 0 by definition) and every frame accepted so far; frame i is
+matched against frame 0, the latest anchors and a few older ones spread over the session, so that a frame that
+sees surface visible before is tied to it directly, and a frame that sees new surface is tied through its
+neighbours. Frames without an accepted θ take it interpolated from the accepted ones (held at the ends); θ is
+then median-filtered over ``spin_smooth`` frames. Only the rotation about the axis changes: the other five
+degrees of freedom, which the geometry fixes, are kept.
+
+Textureless bodies: too few votes anywhere, θ = 0 everywhere (``SpinResult.observable`` False): the spin is
+reported as unobservable and the poses are unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from service.tracking.geometry import _cross
+from service.transforms import X_inv, make_X, so3_exp
+
+
+@dataclass
+class SpinResult:
+    is_revolution: bool  # the model's weakest direction is a rotation (body of revolution)
+    lam: float  # its normalised eigenvalue λ̂
+    axis_O: np.ndarray  # (3,) unit axis a in O (zeros when not a body of revolution)
+    point_O: np.ndarray  # (3,) point c on the axis in O
+    theta: np.ndarray  # (N,) spin correction (rad) applied to each frame: X_WO ← X_WO S(θ)
+    votes: np.ndarray  # (N,) inlier votes of each frame's estimate (0: interpolated)
+    observable: bool  # enough texture to measure the spin in some frames
+
+
+def revolution_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float = 0.5
+                    ) -> tuple[bool, float, np.ndarray, np.ndarray]:
+    """(is_revolution, λ̂, a (3,), c (3,)) of model points Q (M,3) with normals N (M,3) in O (module docstring):
+    a body of revolution when λ̂_1 < tau, λ̂_1 ≤ sep · λ̂_2 (one weak direction, not a near-sphere whose weak
+    directions mix) and that direction is mostly rotation."""
+    if len(Q) < 20:
+        return False, 1.0, np.zeros(3), np.zeros(3)
+    ctr = Q.mean(0)
+    P = Q - ctr  # centred: the screw's translation part is then small and well scaled
+    J = np.hstack([_cross(P, N), N])
+    L = float(np.sqrt(np.mean(np.sum(P**2, 1)))) or 1.0
+    Di = np.diag([1 / L, 1 / L, 1 / L, 1.0, 1.0, 1.0])
+    lam, U = np.linalg.eigh(Di @ (J.T @ J) @ Di)
+    lam = lam / len(Q)
+    u = U[:, 0]
+    if np.sum(u[:3] ** 2) <= 0.5 or lam[0] >= tau or lam[0] > sep * lam[1]:
+        return False, float(lam[0]), np.zeros(3), np.zeros(3)
+    xi = Di @ u  # back to (ω, v) in metres: z = D ξ
+    w, v = xi[:3], xi[3:]
+    a = w / np.linalg.norm(w)
+    c = np.cross(w, v) / float(w @ w) + ctr
+    return True, float(lam[0]), a, c
+
+
+def spin_matrix(a: np.ndarray, c: np.ndarray, theta: float) -> np.ndarray:
+    """4x4 rotation by theta (rad) about the line through c with direction a."""
+    R = so3_exp(a * theta)
+    return make_X(R, c - R @ c)
+
+
+def interior_features(gray: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray, X_WC: np.ndarray,
+                      border_px: int, n_features: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """ORB keypoints of a grey image (H,W) uint8 at least ``border_px`` inside the object mask (H,W) with valid depth
+    (H,W) metres: (F,3) points in W and (F,32) descriptors (None when there are none). Detected on the crop around
+    the mask (same keypoints, less work)."""
+    import cv2
+
+    m = mask.astype(np.uint8)
+    k = 2 * border_px + 1
+    fm = cv2.erode(m, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))) * 255
+    vs, us = np.nonzero(fm)
+    if len(us) == 0:
+        return np.zeros((0, 3)), None
+    pad = 24  # ORB's border and patch
+    v0, v1 = max(int(vs.min()) - pad, 0), min(int(vs.max()) + pad + 1, gray.shape[0])
+    u0, u1 = max(int(us.min()) - pad, 0), min(int(us.max()) + pad + 1, gray.shape[1])
+    orb = cv2.ORB_create(nfeatures=n_features, scaleFactor=1.2, nlevels=4, edgeThreshold=9, patchSize=15,
+                         fastThreshold=7)
+    kps, des = orb.detectAndCompute(np.ascontiguousarray(gray[v0:v1, u0:u1]), np.ascontiguousarray(fm[v0:v1, u0:u1]))
+    if des is None or not len(kps):
+        return np.zeros((0, 3)), None
+    uv = np.array([kp.pt for kp in kps]) + [u0, v0]
+    uu = np.clip(np.round(uv[:, 0]).astype(int), 0, depth.shape[1] - 1)
+    vv = np.clip(np.round(uv[:, 1]).astype(int), 0, depth.shape[0] - 1)
+    z = depth[vv, uu]
+    good = z > 0
+    if not good.any():
+        return np.zeros((0, 3)), None
+    Pc = np.stack([(uv[good, 0] - K[0, 2]) / K[0, 0] * z[good], (uv[good, 1] - K[1, 2]) / K[1, 1] * z[good], z[good]], 1)
+    return Pc @ X_WC[:3, :3].T + X_WC[:3, 3], des[good]
+
+
+def _cyl(P_O: np.ndarray, a: np.ndarray, c: np.ndarray, e1: np.ndarray, e2: np.ndarray
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Radius, height and azimuth of points (N,3) about the axis (a, c) with in-plane basis e1, e2."""
+    d = P_O - c
+    h = d @ a
+    x, y = d @ e1, d @ e2
+    return np.hypot(x, y), h, np.arctan2(y, x)
+
+
+def spin_votes(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray, a: np.ndarray, c: np.ndarray,
+               tol: float) -> np.ndarray:
+    """Spin votes θ (K,) (rad, wrapped to (−π, π]) of matched points p (in frame i, W) and q (in anchor j, W):
+    θ with S(θ) q_O = p_O, kept where radius and height about the axis agree within ``tol`` (m) and the radius is
+    at least ``tol`` (points on the axis carry no azimuth)."""
+    e1 = np.cross(a, [1.0, 0.0, 0.0])
+    if np.linalg.norm(e1) < 0.3:
+        e1 = np.cross(a, [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    Xi, Xj = X_inv(X_i), X_inv(X_j)
+    pO = pW @ Xi[:3, :3].T + Xi[:3, 3]
+    qO = qW @ Xj[:3, :3].T + Xj[:3, 3]
+    rp, hp, fp = _cyl(pO, a, c, e1, e2)
+    rq, hq, fq = _cyl(qO, a, c, e1, e2)
+    ok = (np.abs(rp - rq) < tol) & (np.abs(hp - hq) < tol) & (np.minimum(rp, rq) > tol)
+    return np.angle(np.exp(1j * (fp[ok] - fq[ok])))
+
+
+def vote_mode(theta: np.ndarray, half_width: float) -> tuple[float, int]:
+    """(θ, count): the median of the largest set of votes within ±half_width of one another's centre."""
+    if len(theta) == 0:
+        return 0.0, 0
+    t = np.sort(theta)
+    t2 = np.concatenate([t, t + 2 * np.pi])  # wrap-around
+    j = np.searchsorted(t2, t2[: len(t)] + 2 * half_width, side="right")
+    cnt = j - np.arange(len(t))
+    k = int(np.argmax(cnt))
+    sel = t2[k: j[k]]
+    return float(np.angle(np.exp(1j * np.median(sel)))), int(cnt[k])
+
+
+def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, Q: np.ndarray, N: np.ndarray,
+                 *, tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
+                 n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0) -> SpinResult:
+    """Spin correction θ (N,) of the poses X_WO (N,4,4) of a body of revolution (module docstring) from each
+    frame's interior features ``feats[i] = (points (F,3) in W, descriptors (F,32) or None)``
+    (``interior_features``); X_WO is not changed (apply with ``apply_spin``). Q (M,3), N (M,3): the final model
+    in O. ``match(desc_a, desc_b) -> (M,2)`` pairs descriptors (the tracker's ratio-test matcher)."""
+    n = len(X_WO)
+    is_rev, lam, a, c = revolution_axis(Q, N, tau, sep)
+    theta = np.zeros(n)
+    votes = np.zeros(n, int)
+    if not is_rev:
+        return SpinResult(False, lam, a, c, theta, votes, False)
+    Xc = X_WO.copy()  # corrected poses of the anchors
+    anchors = [0]
+    half = np.radians(inlier_deg)
+    for i in range(1, n):
+        kp, des = feats[i]
+        if des is None or len(kp) < min_votes:
+            continue
+        older = [j for j in anchors[:-n_recent] if j != 0]
+        spread = [older[k] for k in np.unique(np.linspace(0, len(older) - 1, n_spread).astype(int))] if older else []
+        cand = sorted(set([0] + spread + anchors[-n_recent:]))
+        prev = anchors[-1]
+        win = np.radians(max_jump_deg) * (1 + (i - prev - 1) / 5)  # wider after frames without an estimate
+        th_all = []
+        for j in cand:
+            kq, dq = feats[j]
+            m = match(des, dq)
+            if len(m) == 0:
+                continue
+            th = spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], Xc[j], a, c, tol)
+            th = theta[prev] + np.angle(np.exp(1j * (th - theta[prev])))
+            th = th[np.abs(th - theta[prev]) <= win]
+            th_all.append(th)
+        t, cnt = vote_mode(np.concatenate(th_all) if th_all else np.zeros(0), half)
+        if cnt >= min_votes:
+            theta[i] = theta[prev] + np.angle(np.exp(1j * (t - theta[prev])))
+            votes[i] = cnt
+            Xc[i] = X_WO[i] @ spin_matrix(a, c, theta[i])
+            anchors.append(i)
+    ok = votes > 0
+    ok[0] = True
+    observable = int(np.sum(votes > 0)) > 0
+    idx = np.nonzero(ok)[0]
+    full = np.interp(np.arange(n), idx, theta[idx])
+    if smooth > 1:
+        from scipy.ndimage import median_filter
+
+        full = median_filter(full, size=smooth, mode="nearest")
+    full[0] = 0.0
+    return SpinResult(True, lam, a, c, full, votes, observable)
+
+
+def apply_spin(X_WO: np.ndarray, res: SpinResult) -> np.ndarray:
+    """X_WO (N,4,4) with each frame turned by its θ about the axis: X_WO(i) S(θ_i)."""
+    if not res.is_revolution:
+        return X_WO.copy()
+    return np.stack([X @ spin_matrix(res.axis_O, res.point_O, t) for X, t in zip(X_WO, res.theta)])
