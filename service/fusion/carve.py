@@ -111,3 +111,42 @@ def carve_grid(
     d_out = ndimage.distance_transform_edt(~F)  # voxels to the nearest free voxel
     d_F = (float(grid.voxel) * np.where(F, d_in - 0.5, 0.5 - d_out)).astype(np.float32)
     return SdfGrid(origin_O=grid.origin_O, voxel=grid.voxel, values=np.maximum(vals, d_F), observed=grid.observed), n
+
+
+def open_unsupported(
+    grid: SdfGrid, evidence_O: np.ndarray, radius: float, support: float
+) -> tuple[SdfGrid, int]:
+    """The grid without its thin parts that no evidence point supports, and the number of voxels removed.
+
+    Thin parts are what a morphological opening of the solid {S < 0} by a Euclidean ball of ``radius`` (m, rounded
+    to whole voxels, ≥ 1) removes: sheets and spikes thinner than about 2·radius. Of those, a voxel is removed only
+    when no evidence point (observed depth surface points and physible points, (K,3) in O) lies within
+    ``support`` (m) of its centre; thin walls the camera or a contact saw stay. Same composition as
+    ``carve_grid``: S' = max(S, d_D) with d_D the signed distance into the removed set D."""
+    from scipy import ndimage
+    from scipy.spatial import cKDTree
+
+    from service.sdf.grid import grid_points
+
+    vals = np.asarray(grid.values, np.float32)
+    inside = vals < 0
+    r = max(1, int(round(float(radius) / float(grid.voxel))))
+    k = np.arange(-r, r + 1)
+    ball = (k[:, None, None] ** 2 + k[None, :, None] ** 2 + k[None, None, :] ** 2) <= r * r
+    opened = ndimage.binary_opening(np.pad(inside, r + 1), ball)[(slice(r + 1, -r - 1),) * 3]
+    thin = (inside & ~opened).reshape(-1)
+    if not thin.any():
+        return grid, 0
+    E = np.asarray(evidence_O, float).reshape(-1, 3)
+    E = E[np.all(np.isfinite(E), axis=1)]
+    P = grid_points(grid.origin_O, grid.voxel, grid.shape).reshape(-1, 3)[thin]
+    d = cKDTree(E).query(P, distance_upper_bound=float(support) * (1 + 1e-6))[0] if len(E) else np.full(len(P), np.inf)
+    drop = np.zeros(vals.size, bool)
+    drop[np.flatnonzero(thin)[~np.isfinite(d)]] = True
+    n = int(drop.sum())
+    if n == 0:
+        return grid, 0
+    D = drop.reshape(vals.shape)
+    d_D = (float(grid.voxel) * np.where(D, ndimage.distance_transform_edt(D) - 0.5,
+                                        0.5 - ndimage.distance_transform_edt(~D))).astype(np.float32)
+    return SdfGrid(origin_O=grid.origin_O, voxel=grid.voxel, values=np.maximum(vals, d_D), observed=grid.observed), n

@@ -26,7 +26,7 @@ from typing import Callable
 import numpy as np
 
 from service.errors import StageFailed
-from service.fusion.carve import carve_grid, free_space_votes
+from service.fusion.carve import carve_grid, free_space_votes, open_unsupported
 from service.fusion.losses import PhysibleLosses
 from service.fusion.samples import hyperplane_anchors, hyperplane_samples, inside_box, ray_samples
 from service.fusion.types import FusionConfig, FusionInputs, FusionOutputs
@@ -288,13 +288,21 @@ def fuse(
     grid = fit_sdf(rays, sdf_cfg, init=init, extra_losses=[losses], bounds_O=bounds, progress=fit_progress,
                    halfspace_O=halfspace_O)
     t_fit = time.perf_counter() - t0 - t_prep
-    n_carved = 0
+    # matter no evidence supports: what the camera saw through, then thin parts no observed point or contact touches
+    fitted = grid
+    n_carved = n_thin = 0
     if cfg.carve_free_space and free_space is not None and len(free_space[0]):
         grid, n_carved = carve_grid(grid, free_space[0], free_space[1], free_space[2], margin=cfg.carve_margin,
                                     radius_px=cfg.carve_radius_px, min_frac=cfg.carve_min_frac,
                                     min_frames=cfg.carve_min_frames)
+    if cfg.thin_open_radius > 0:
+        grid, n_thin = open_unsupported(grid, np.concatenate([vis, P]), cfg.thin_open_radius, cfg.thin_support)
     t_carve = time.perf_counter() - t0 - t_prep - t_fit
     mesh = extract_mesh(grid)
+    fallback = grid is not fitted and (mesh.is_empty or not mesh.to_trimesh().is_watertight)
+    if fallback:  # the removal left no closed surface: keep the fitted one
+        grid, n_carved, n_thin = fitted, 0, 0
+        mesh = extract_mesh(grid)
     if mesh.is_empty:
         raise StageFailed("fusion", "the fused SDF has no zero level set inside its grid")
     tm = mesh.to_trimesh()
@@ -314,6 +322,8 @@ def fuse(
         "time_prepare_s": t_prep,
         "time_fit_s": t_fit,
         "carved_voxels": float(n_carved),
+        "thin_unsupported_voxels": float(n_thin),
+        "removal_fallback": float(fallback),
         "carved_frames": float(len(free_space[0]) if (cfg.carve_free_space and free_space is not None) else 0),
         "time_carve_s": t_carve,
         **{f"final_loss_{k}": v for k, v in losses.last.items()},

@@ -83,17 +83,20 @@ def test_penetrating_points_below_the_table_or_inside_the_end_effector():
     assert penetrating(P, X_WO, np.array([True, True]), 0.0, None, 0.0, tol=0.003).tolist() == [False, True, True, False, False]
 
 
+FIN_C, FIN_H = np.array([0.047, 0.0, 0.0]), np.array([0.017, 0.003, 0.012])  # fin: x 3.0-6.4 cm, 6 mm thick
+
+
 def _box_with_fin_grid(voxel: float = 0.004):
-    """SDF grid (in O) of the scenes' box with a thin fin sticking out of its +x face: 2.4 cm long, 4 mm thick."""
+    """SDF grid (in O) of the scenes' box with a thin fin sticking 2.4 cm out of its +x face, 6 mm thick."""
     from service.sdf.grid import grid_points
     from service.sdf.types import SdfGrid
     from tests.fusion.scenes import box_sdf
 
     origin = np.array([-0.07, -0.06, -0.05])
-    shape = (36, 31, 26)
+    shape = tuple(int(round(e / voxel)) + 1 for e in (0.14, 0.12, 0.10))
     P = grid_points(origin, voxel, shape).reshape(-1, 3)
-    fin = box_sdf(P - [0.052, 0.0, 0.0], half=np.array([0.012, 0.002, 0.012]))
-    S = np.minimum(box_sdf(P), fin).reshape(shape).astype(np.float32)
+    fin = box_sdf(P - FIN_C, half=FIN_H)
+    S = np.minimum(box_sdf(P), fin).reshape(shape).astype(np.float32) + np.float32(1e-5)  # no exact zeros
     return SdfGrid(origin_O=origin, voxel=voxel, values=S)
 
 
@@ -131,7 +134,7 @@ def test_carve_grid_removes_a_fin_the_camera_sees_through_and_keeps_the_box():
     inside = box_sdf(P) < -g.voxel
     assert np.array_equal(out.values.reshape(-1)[inside], g.values.reshape(-1)[inside])
     # the carved field stays a distance-like field: ≥ 0 on the fin, equal to S away from it
-    fin = box_sdf(P - [0.052, 0.0, 0.0], half=np.array([0.012, 0.002, 0.012])) < 0
+    fin = box_sdf(P - FIN_C, half=FIN_H) < 0
     assert np.all(out.values.reshape(-1)[fin & (P[:, 0] > 0.04 + 0.006 + g.voxel)] > 0)
 
 
@@ -147,3 +150,27 @@ def test_carve_grid_keeps_what_no_camera_saw_through():
     d, X, Kc = _render([0.35, -0.30, 0.25])
     out, n = carve_grid(g, [d], [X], Kc, margin=0.006, radius_px=1, min_frac=0.2, min_frames=2)
     assert n == 0
+
+
+def test_open_unsupported_removes_a_thin_fin_without_evidence_and_keeps_a_seen_one():
+    from service.fusion.carve import open_unsupported
+    from service.sdf import extract_mesh
+    from service.sdf.grid import grid_points
+    from tests.fusion.scenes import box_sdf
+
+    g = _box_with_fin_grid(voxel=0.002)
+    P = grid_points(g.origin_O, g.voxel, g.shape).reshape(-1, 3)
+    on_box = P[np.abs(box_sdf(P)) < 0.001]  # evidence on the box surface only
+    out, n = open_unsupported(g, on_box, radius=0.004, support=0.004)
+    assert n > 0
+    after = extract_mesh(out).to_trimesh()
+    assert after.bounds[1, 0] < 0.04 + 0.004 + g.voxel  # the fin is gone up to the support distance
+    inside = box_sdf(P) < -0.001  # the box stays solid (values near the fin's root may rise, never to > 0)
+    assert np.all(out.values.reshape(-1)[inside] < 0)
+    # evidence on the fin too (e.g. depth points on a real thin wall): nothing of it is removed
+    fin_surface = P[np.abs(box_sdf(P - FIN_C, half=FIN_H)) < 0.001]
+    out2, n2 = open_unsupported(g, np.concatenate([on_box, fin_surface]), radius=0.004, support=0.004)
+    assert extract_mesh(out2).to_trimesh().bounds[1, 0] > 0.06
+    # no evidence at all: only thin parts go, the box stays
+    out3, _ = open_unsupported(g, np.zeros((0, 3)), radius=0.004, support=0.004)
+    assert abs(extract_mesh(out3).to_trimesh().volume - 0.08 * 0.06 * 0.04) < 0.1 * 0.08 * 0.06 * 0.04

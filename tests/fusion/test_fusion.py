@@ -211,3 +211,45 @@ def test_penetration_filter_uses_only_poses_the_depth_agrees_with(scene):
     unchecked = run(bad, dataclasses.replace(cfg, pose_residual_max=np.inf))
     assert unchecked.metrics["physible_penetrating_dropped"] >= 40  # every bottom contact, at least
     assert run(inputs, cfg).metrics["physible_penetrating_dropped"] == 0
+
+
+def test_seen_through_fin_is_carved_and_unsupported_thin_part_removed(scene):
+    """A fin standing 2 cm on the seen top face, 6 mm thick, that the camera sees through onto the top face: it
+    stays without the removals, goes with the free-space carving (default; up to the 1 cm margin), and mostly goes
+    with the thin-part removal alone (no depth point or contact within 4 mm of most of it)."""
+    from service.sdf.grid import grid_points
+    from service.sdf.types import SdfGrid
+    from tests.fusion.scenes import box_sdf
+
+    inputs, visible, _ = scene
+    P = grid_points(visible.origin_O, visible.voxel, visible.shape).reshape(-1, 3)
+    fin = box_sdf(P - [0.015, 0.0, 0.03], half=np.array([0.01, 0.003, 0.01])).reshape(visible.shape)
+    finned = SdfGrid(visible.origin_O, visible.voxel, np.minimum(visible.values, fin).astype(np.float32))
+    assert extract_mesh(finned).to_trimesh().bounds[1, 2] > 0.035
+    # the tiny session renders no background: a depth window touching the silhouette holds no reading, so 1 px
+    cfg = dataclasses.replace(CFG, init="visible", sdf=dataclasses.replace(CFG.sdf, steps=3), carve_radius_px=1)
+    inp = dataclasses.replace(inputs, visible_sdf=finned)
+    keep = run(inp, dataclasses.replace(cfg, carve_free_space=False, thin_open_radius=0.0))
+    assert cfg.thin_open_radius == 0.0  # off by default
+    assert keep.mesh.to_trimesh().bounds[1, 2] > 0.035
+    assert keep.metrics["carved_voxels"] == 0 and keep.metrics["thin_unsupported_voxels"] == 0
+    carved = run(inp, cfg)
+    assert carved.metrics["carved_voxels"] > 0 and carved.metrics["removal_fallback"] == 0
+    assert carved.mesh.to_trimesh().bounds[1, 2] < HALF[2] + cfg.carve_margin + 2 * finned.voxel
+    assert carved.mesh.to_trimesh().is_watertight
+    thin = run(inp, dataclasses.replace(cfg, carve_free_space=False, thin_open_radius=0.005))
+    assert thin.metrics["thin_unsupported_voxels"] > 0
+
+    def above_top(grid):  # solid volume more than 4 mm above the top face, m³
+        Q = grid_points(grid.origin_O, grid.voxel, grid.shape).reshape(-1, 3)
+        return float(((grid.values.reshape(-1) < 0) & (Q[:, 2] > HALF[2] + 0.004)).sum() * grid.voxel ** 3)
+
+    assert above_top(keep.sdf) > 0.5 * 0.02 * 0.006 * 0.016  # most of the fin is there without the removals
+    assert above_top(thin.sdf) < 0.5 * above_top(keep.sdf)  # most of it; the part near the face stays
+
+    def below_top(grid):  # solid volume below the top face, m³
+        Q = grid_points(grid.origin_O, grid.voxel, grid.shape).reshape(-1, 3)
+        return float(((grid.values.reshape(-1) < 0) & (Q[:, 2] < HALF[2] - 0.004)).sum() * grid.voxel ** 3)
+
+    # carving keeps the rest of the object (what 3 steps from the one-sided visible start have of it)
+    assert below_top(carved.sdf) == pytest.approx(below_top(keep.sdf), rel=0.02) and below_top(keep.sdf) > 0
