@@ -157,7 +157,12 @@ def diagnose(bundle_dir: Path, session_dir: Path, segment_s: float = 0.3, loops:
         V = np.asarray(V, float)
         return np.round(np.ptp((V - V.mean(0)) @ np.linalg.svd(V - V.mean(0), full_matrices=False)[2].T, axis=0) * 100, 1)
 
-    print(f"  diagnose: extents learned {ext(L.visual.vertices)} cm vs true {ext(VO)} cm; inertia eigenvalues learned "
+    import trimesh as _tm
+
+    hull_l = float(_tm.convex.convex_hull(np.asarray(L.visual.vertices)).volume)
+    hull_t = float(_tm.convex.convex_hull(VO).volume)
+    print(f"  diagnose: extents learned {ext(L.visual.vertices)} cm vs true {ext(VO)} cm, convex hull {hull_l * 1e3:.3f} L vs "
+          f"{hull_t * 1e3:.3f} L (fusion metrics: carved {fu.metrics.get('carved_voxels', 0):.0f} voxels); inertia eigenvalues learned "
           f"{np.round(np.linalg.eigvalsh(L.inertia_O) * 1e4, 2)} vs true {np.round(np.linalg.eigvalsh(T.inertia_O) * 1e4, 2)} "
           f"(1e-4 kg m^2); CoM offset {np.linalg.norm(L.com_O - T.com_O) * 1e3:.0f} mm")
     robot = RobotPath(np.asarray(sess.robot_t, float), np.asarray(sess.robot_p_WE, float), None, float(sess.ee_radius))
