@@ -124,15 +124,34 @@ class TrackingConfig:
     visible_samples: int = 3000  # samples on the convex hull of the visible mesh (plus its vertices)
     visible_depth_tol: float = 0.01  # |z_render − z_obs| for the visibility check
     visible_frames: int = 30
+    # keyframe deferral (kf_still_speed set): only while the object slides on the face it rests on (vertical axis
+    # within this many degrees of the last keyframe's; None: any motion), at most kf_still_max_frames frames in a
+    # row, and new-surface keyframes wait too unless kf_still_new is False (tracker._defer_keyframe)
+    kf_still_tilt_deg: float | None = 5.0
+    kf_still_max_frames: int = 15
+    kf_still_new: bool = True
+    # edges: points with a neighbour within crease_dist whose normal differs by more than arccos(crease_cos) are
+    # dropped from every frame (their normals blend two faces: a chamfer in the model that drags a newly seen face
+    # into it; geometry.crease_points; 0: off), and ICP pairs whose normals differ by more than
+    # arccos(icp_normal_cos) are not matched (0: off)
+    crease_dist: float = 0.0
+    crease_cos: float = 0.85
+    icp_normal_cos: float = 0.0
+    normal_jump: bool = False  # drop points whose ±2 px normal differences reach across a depth jump (silhouettes)
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
             raise ValueError(f"TrackingConfig.color_mode must be 'gray' or 'chroma', not {self.color_mode!r}")
         self.stage_set("degen_stages")
         self.stage_set("color_stages")
-        for name in ("w_feat_degen", "w_color", "max_speed", "max_rate_deg", "kf_min_new_add"):
+        for name in ("w_feat_degen", "w_color", "max_speed", "max_rate_deg", "kf_min_new_add", "kf_still_rate_deg",
+                     "kf_still_max_frames", "crease_dist"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+
+        for name in ("kf_still_speed", "kf_still_tilt_deg"):
+            if getattr(self, name) is not None and not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages`` or ``color_stages`` (comma-separated; ValueError for an unknown one)."""
