@@ -136,10 +136,6 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
         good &= (nb > 0) & (np.abs(nb - d0) < jump)
     N_C, nok = pixel_normals(depth, K, u, v, step=2)
     good &= nok
-    if cfg.normal_jump:  # the ±2 px differences of the normal must not reach across a depth jump either
-        for du, dv in ((2, 0), (-2, 0), (0, 2), (0, -2)):
-            nb = depth[np.clip(v + dv, 0, H - 1), np.clip(u + du, 0, W - 1)]
-            good &= np.abs(nb - d0) < jump
     u, v, N_C = u[good], v[good], N_C[good]
     if len(u) > cfg.max_points:
         sel = rng.choice(len(u), cfg.max_points, replace=False)

@@ -137,7 +137,6 @@ class TrackingConfig:
     crease_dist: float = 0.0
     crease_cos: float = 0.85
     icp_normal_cos: float = 0.0
-    normal_jump: bool = False  # drop points whose ±2 px normal differences reach across a depth jump (silhouettes)
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
