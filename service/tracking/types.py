@@ -81,9 +81,10 @@ class TrackingConfig:
     kf_min_new_add: float = 0.02  # ... and at least this fraction are off-model points it adds (within grow_dist,
     # not seen through); without it, points that are never added keep the trigger on in every frame
     kf_min_inlier_frac: float = 0.5
-    # if kf_still_speed is set (m/s; 0.1 tried, off: it broke topple 703, 2.03° -> 8.8°), a frame taken only for
-    # being far (no new surface) is no keyframe while the object moves faster than it or kf_still_rate_deg (°/s):
-    # poses tracked during an impulsive motion lag (strike session 511: 8–10°) and poison the model
+    # if kf_still_speed is set (m/s; 0.1 tried, off), a keyframe candidate waits while the object moves faster than
+    # it or kf_still_rate_deg (°/s) and slides on its face (kf_still_tilt_deg below; tracker._defer_keyframe): poses
+    # tracked during an impulsive motion lag (strike session 511: 5–10°) and poison the model. Without the tilt
+    # condition it broke topple 703 (2.03° -> 8.8°); with it 2.39° (docs/tracking.md, "Strike sessions")
     kf_still_speed: float | None = None
     kf_still_rate_deg: float = 60.0
     grow_dist: float = 0.015  # points farther than this from the model are not added (mask noise)
