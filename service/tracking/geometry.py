@@ -8,7 +8,8 @@
   Unknown X_OW; each Gauss–Newton step linearises p' = p + ω × p + t (small motion applied in O) and minimises
       Σ ρ((p' − q)·n)  +  λ_pt Σ ‖p' − q‖²  +  λ_f Σ ‖p'_f − b_f‖²
   (point-to-plane with Huber weights, a small point-to-point term against tangential sliding, and 3-D feature
-  correspondences), with nearest neighbours inside a shrinking radius; X_OW ← Exp(δ) X_OW.
+  correspondences), with nearest neighbours inside a shrinking radius (optionally only pairs whose normals agree,
+  n_p·n_q > ``normal_cos``); X_OW ← Exp(δ) X_OW.
 - Degeneracy (Zhang, Kaess & Singh 2016, "On degeneracy of optimization-based state estimation problems"):
   the point-to-plane normal matrix H = Σ w JᵀJ, J = [p × n, n], is made unit-consistent with z = Dδ,
   D = diag(L, L, L, 1, 1, 1) (L = RMS radius of the matched points: a rotation counts as the arc it moves them),

@@ -29,6 +29,9 @@ Colour along the weak directions (``w_color``, off by default; ``geometry.color_
 2017): keyframe points keep their chromaticity (or luma), the model a voxel-averaged colour and its tangent-plane
 gradient per point, and the photometric residual enters the ICP of the stages in ``color_stages`` projected on
 the weak directions at ``color_tau`` (docs/tracking.md for the figures).
+Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast
+on the face it rests on (``kf_still_speed``, ``_defer_keyframe``); edge points, whose normals blend two faces, are
+dropped (``crease_dist``, ``geometry.crease_points``) and ICP pairs need compatible normals (``icp_normal_cos``).
 Frames never tracked keep tracked=False and get poses interpolated (slerp/lerp) between tracked neighbours.
 O: origin at the centroid of frame 0's object points in W, axes parallel to W (docs/conventions.md).
 """
