@@ -29,6 +29,9 @@ Colour along the weak directions (``w_color``, off by default; ``geometry.color_
 2017): keyframe points keep their chromaticity (or luma), the model a voxel-averaged colour and its tangent-plane
 gradient per point, and the photometric residual enters the ICP of the stages in ``color_stages`` projected on
 the weak directions at ``color_tau`` (docs/tracking.md for the figures).
+Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast
+on the face it rests on (``kf_still_speed``, ``_defer_keyframe``); edge points, whose normals blend two faces, are
+dropped (``crease_dist``, ``geometry.crease_points``) and ICP pairs need compatible normals (``icp_normal_cos``).
 Frames never tracked keep tracked=False and get poses interpolated (slerp/lerp) between tracked neighbours.
 O: origin at the centroid of frame 0's object points in W, axes parallel to W (docs/conventions.md).
 """
@@ -41,7 +44,8 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from service.tracking.geometry import IcpResult, backproject, color_gradients, icp, pixel_normals, ransac_rigid
+from service.tracking.geometry import (IcpResult, backproject, color_gradients, crease_points, icp, pixel_normals,
+                                       ransac_rigid)
 from service.tracking.types import TrackingConfig
 from service.transforms import X_inv, make_X, rotation_angle, so3_exp, so3_log
 
@@ -152,6 +156,8 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
         C = point_colors(session.rgb(i), u, v, cfg.color_mode, cfg.color_blur_px)
     # the table next to the object's base has continuous depth and leaks in with the mask boundary
     above = (P_W[:, 2] > session.table_height + cfg.table_clearance) & ~near_effector(session, i, P_W, cfg)
+    if cfg.crease_dist > 0:  # edge points: their normals blend two faces (geometry.crease_points)
+        above &= ~crease_points(P_W, N_W, cfg.crease_dist, cfg.crease_cos)
     P_W, N_W = P_W[above], N_W[above]
     C = None if C is None else C[above]
     kp_W = np.zeros((0, 3))
@@ -240,6 +246,33 @@ def _jump(X_a: np.ndarray, X_b: np.ndarray, dt: float, cfg: TrackingConfig) -> b
     dist, ang = _pose_dist(X_a, X_b)
     dt = max(float(dt), 1e-6)
     return dist / dt > cfg.max_speed or ang / dt > cfg.max_rate_deg
+
+
+def _defer_keyframe(X_a: np.ndarray, X_i: np.ndarray, X_kf: np.ndarray, dt: float, far: bool, new_surface: bool,
+                    n_deferred: int, cfg: TrackingConfig) -> bool:
+    """True when frame i, a keyframe candidate (``far`` from every keyframe and/or showing ``new_surface``), should
+    wait (``kf_still_speed`` set): the object moves faster than kf_still_speed (m/s) or kf_still_rate_deg (°/s)
+    from the last tracked pose X_a, dt seconds before, AND it slides on the face it rests on — its vertical axis
+    within kf_still_tilt_deg of the last keyframe's X_kf (None: any motion) — AND fewer than kf_still_max_frames
+    frames in a row have waited. A pose tracked during an impulsive slide lags (ICP from the constant-velocity
+    prediction stops 5–10° short) and a keyframe taken there puts that lag into the model, where it stays along the
+    directions the overlaps do not fix (sliding along a box face); the frame at rest after the slide is far from
+    every keyframe and is taken instead. A tipping object (topple) shows new faces during the turn and keeps its
+    keyframes; new-surface keyframes wait too unless kf_still_new is False."""
+    if cfg.kf_still_speed is None or n_deferred >= cfg.kf_still_max_frames:
+        return False
+    if new_surface and not far and not cfg.kf_still_new:
+        return False
+    dt = max(float(dt), 1e-6)
+    step_m, step_deg = _pose_dist(X_a, X_i)
+    if step_m / dt <= cfg.kf_still_speed and step_deg / dt <= cfg.kf_still_rate_deg:
+        return False  # nearly still: no lag
+    if cfg.kf_still_tilt_deg is not None:
+        z = np.array([0.0, 0.0, 1.0])
+        c = float(np.clip((X_i[:3, :3].T @ z) @ (X_kf[:3, :3].T @ z), -1.0, 1.0))
+        if np.degrees(np.arccos(c)) > cfg.kf_still_tilt_deg:
+            return False  # tipping: new faces come into view, keyframes are needed during the turn
+    return True
 
 
 def _pose_dist(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
@@ -366,7 +399,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     kf_log: list[dict] = []
     n_feat = np.zeros((N, 2), int)
 
-    icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist)
+    icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist,
+                  normal_cos=cfg.icp_normal_cos)
     stages = cfg.stage_set("degen_stages")
 
     def deg_kw_for(stage: str) -> dict:
@@ -381,6 +415,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                     color_tau=cfg.color_tau, color_rot_only=cfg.color_rot_only)
 
     deg_kw = deg_kw_for("track")
+    n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
     frng = np.random.default_rng(cfg.seed + 1)  # RANSACs of the keyframe features (own stream: rng unchanged)
     for i in range(1, N):
         o = observe(session, i, cfg, rng)
@@ -410,14 +445,15 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 dt, da = _pose_dist(best.X_WO, Xc)
                 if dt < 0.01 and da < 5.0:
                     continue  # this start converges to the pose already found
-            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, **icp_kw,
+            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw,
                     **{**deg_kw, **col_kw("track", o.C, model)})
             if _better(r, best):
                 best = r
         if a != i - 1 and not _good(best, cfg):
             # re-localisation: wider search from the last tracked pose and every keyframe pose
             for kf in keyframes[::-1][:8]:
-                r = icp(o.P_W, kf.X_WO, model.tree, model.Q, model.N, **{**icp_kw, "dist0": 2 * cfg.icp_dist0})
+                r = icp(o.P_W, kf.X_WO, model.tree, model.Q, model.N, N_src=o.N_W,
+                        **{**icp_kw, "dist0": 2 * cfg.icp_dist0})
                 if _better(r, best):
                     best = r
         X[i] = best.X_WO
@@ -432,13 +468,10 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         far = min(max(d / cfg.kf_dist, ang / cfg.kf_angle_deg) for d, ang in dists) >= 1.0
         new_frac = float(np.mean(best.nn_dist > cfg.inlier_dist))
         still = True
-        if cfg.kf_still_speed is not None and far and new_frac <= cfg.kf_new_frac:
-            # a keyframe taken only for being far (no new surface) waits until the object is nearly still: a pose
-            # tracked during an impulsive motion lags (ICP from the constant-velocity prediction stops short), and a
-            # keyframe taken there shifts the model and every later frame with it (off by default)
-            dt_s = max(float(session.frame_times[i] - session.frame_times[a]), 1e-6)
-            step_m, step_deg = _pose_dist(X[a], X[i])
-            still = step_m / dt_s <= cfg.kf_still_speed and step_deg / dt_s <= cfg.kf_still_rate_deg
+        if cfg.kf_still_speed is not None and (far or new_frac > cfg.kf_new_frac):
+            still = not _defer_keyframe(X[a], X[i], keyframes[-1].X_WO, session.frame_times[i] - session.frame_times[a],
+                                        far, new_frac > cfg.kf_new_frac, n_defer, cfg)
+            n_defer = 0 if still else n_defer + 1
         if still and best.inlier_frac >= cfg.kf_min_inlier_frac and (far or new_frac > cfg.kf_new_frac):
             near = best.nn_dist < cfg.grow_dist
             X_OW = X_inv(X[i])
@@ -480,7 +513,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 kf = keyframes[k]
                 fW, fO = _kf_features(kf.kp_W, kf.desc, kf.X_WO, [kk for j, kk in enumerate(keyframes) if j != k],
                                       cfg, frng) if "refine" in stages else (None, None)
-                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, feat_W=fW, feat_O=fO, w_feat=0.0,
+                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=kf.N_W,
                         **{**icp_kw, "dist0": 0.015}, **{**deg_kw_for("refine"), **col_kw("refine", kf.C, others)})
                 if _good(r, cfg):
                     kf.X_WO = r.X_WO
@@ -498,7 +531,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             start = X[i]
             fW, fO = _kf_features(o.kp_W, o.desc, start, keyframes, cfg, frng) if "final" in stages else (None, None)
             n_feat[i, 1] = 0 if fW is None else len(fW)
-            r = icp(o.P_W, start, model.tree, model.Q, model.N, feat_W=fW, feat_O=fO, w_feat=0.0,
+            r = icp(o.P_W, start, model.tree, model.Q, model.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=o.N_W,
                     **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters},
                     **{**deg_kw_for("final"), **col_kw("final", o.C, model)})
             X[i], frac[i], rmse[i] = r.X_WO, r.inlier_frac, r.rmse
@@ -540,7 +573,8 @@ def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Ke
     all other frames. Updates X, keyframes and carver in place; returns the model in the new frame."""
     if len(o0.P_W) < cfg.min_points:
         return model
-    r = icp(o0.P_W, X[0], model.tree, model.Q, model.N, **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
+    r = icp(o0.P_W, X[0], model.tree, model.Q, model.N, N_src=o0.N_W,
+            **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
     if not _good(r, cfg):
         return model
     D = X_inv(r.X_WO) @ X[0]

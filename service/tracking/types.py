@@ -86,9 +86,10 @@ class TrackingConfig:
     kf_min_new_add: float = 0.02  # ... and at least this fraction are off-model points it adds (within grow_dist,
     # not seen through); without it, points that are never added keep the trigger on in every frame
     kf_min_inlier_frac: float = 0.5
-    # if kf_still_speed is set (m/s; 0.1 tried, off: it broke topple 703, 2.03° -> 8.8°), a frame taken only for
-    # being far (no new surface) is no keyframe while the object moves faster than it or kf_still_rate_deg (°/s):
-    # poses tracked during an impulsive motion lag (strike session 511: 8–10°) and poison the model
+    # if kf_still_speed is set (m/s; 0.1 tried, off), a keyframe candidate waits while the object moves faster than
+    # it or kf_still_rate_deg (°/s) and slides on its face (kf_still_tilt_deg below; tracker._defer_keyframe): poses
+    # tracked during an impulsive motion lag (strike session 511: 5–10°) and poison the model. Without the tilt
+    # condition it broke topple 703 (2.03° -> 8.8°); with it 2.39° (docs/tracking.md, "Strike sessions")
     kf_still_speed: float | None = None
     kf_still_rate_deg: float = 60.0
     grow_dist: float = 0.015  # points farther than this from the model are not added (mask noise)
@@ -141,6 +142,19 @@ class TrackingConfig:
     spin_inlier_deg: float = 3.0  # half width of the vote window
     spin_min_votes: int = 8  # fewer votes: the frame's spin is interpolated from its neighbours
     spin_smooth: int = 5  # median filter (frames) of the spin correction
+    # keyframe deferral (kf_still_speed set): only while the object slides on the face it rests on (vertical axis
+    # within this many degrees of the last keyframe's; None: any motion), at most kf_still_max_frames frames in a
+    # row, and new-surface keyframes wait too unless kf_still_new is False (tracker._defer_keyframe)
+    kf_still_tilt_deg: float | None = 5.0
+    kf_still_max_frames: int = 15
+    kf_still_new: bool = True
+    # edges: points with a neighbour within crease_dist whose normal differs by more than arccos(crease_cos) are
+    # dropped from every frame (their normals blend two faces: a chamfer in the model that drags a newly seen face
+    # into it; geometry.crease_points; 0: off), and ICP pairs whose normals differ by more than
+    # arccos(icp_normal_cos) are not matched (0: off)
+    crease_dist: float = 0.0
+    crease_cos: float = 0.85
+    icp_normal_cos: float = 0.0
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -148,12 +162,17 @@ class TrackingConfig:
         self.stage_set("degen_stages")
         self.stage_set("color_stages")
         for name in ("w_feat_degen", "w_color", "max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
-                     "spin_border_px", "spin_tol", "spin_inlier_deg"):
+                     "spin_border_px", "spin_tol", "spin_inlier_deg", "kf_still_rate_deg", "kf_still_max_frames",
+                     "crease_dist"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         for name in ("spin_features", "spin_min_votes", "spin_smooth"):
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
+
+        for name in ("kf_still_speed", "kf_still_tilt_deg"):
+            if getattr(self, name) is not None and not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages`` or ``color_stages`` (comma-separated; ValueError for an unknown one)."""
