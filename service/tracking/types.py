@@ -138,6 +138,8 @@ class TrackingConfig:
         for name in ("w_feat_degen", "w_color", "max_speed", "max_rate_deg", "kf_min_new_add"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        if not self.sdf_carve_value > 0:
+            raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages`` or ``color_stages`` (comma-separated; ValueError for an unknown one)."""

@@ -61,3 +61,12 @@ def test_smooth_depth_drops_flying_pixels_at_jumps_only():
     assert not ok[:, 14:16].any()  # both sides of the jump, the flying pixel included
     assert not ok[10:12, 3:5].any() and not ok[9, 3] and not ok[10, 2]  # the hole and its neighbours
     assert ok[:, 17:-1].all() and ok[:8, 1:13].all() and ok[13:, 1:13].all()
+
+
+def test_carve_value_must_be_outside():
+    import pytest
+
+    from service.tracking import TrackingConfig
+
+    with pytest.raises(ValueError, match="sdf_carve_value"):
+        TrackingConfig(sdf_carve_value=0.0)
