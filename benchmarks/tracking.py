@@ -19,6 +19,7 @@ frozen frames 0287–0360, and the cube's size from the oriented box of the visi
     python benchmarks/tracking.py --only synth --set new   # the cases 704-712 only (old: 701-703)
     python benchmarks/tracking.py --only synth    # or: --only real
     python benchmarks/tracking.py --one DIR       # one synthetic session folder
+    python benchmarks/tracking.py --only synth --surface-diag   # + where the surface error sits (surface_breakdown)
     python benchmarks/tracking.py --set new --cfg '{"ba_iters": 0, "refine_rounds": 2, "regauge_frame0": false}'
                                                   # the same cases with settings changed (here: before the BA)
 
@@ -128,7 +129,46 @@ def _observed_vertices(out) -> np.ndarray:
     return g.observed[k[:, 0], k[:, 1], k[:, 2]]
 
 
-def run_one(kind: str, path: Path, overrides: dict | None = None) -> dict:
+def surface_breakdown(s, out, mG, X_GO: np.ndarray, d: np.ndarray, obs: np.ndarray, step: int = 10) -> dict:
+    """Where the surface error of the depth-supported vertices sits (diagnostic, ``--surface-diag``): per class,
+    vertex count, mean distance to the true surface (mm) and share of the summed error. Classes: distance to the
+    nearest object point seen in every ``step``-th frame (masked depth back-projected with the tracked pose; 2 mm:
+    on the seen surface, beyond: closure), outside/inside the true surface, in space some of those frames saw
+    empty (their depth reading lies > 5 mm behind the vertex), in concave parts of the true shape (the closest true
+    point > 3 mm inside the true convex hull) and within 1 cm of the table at frame 0."""
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    from service.tracking.tracker import FreeSpace
+    from service.transforms import X_inv
+
+    v = out.visible_mesh.vertices
+    vG = v @ X_GO[:3, :3].T + X_GO[:3, 3]
+    seen, fs = [], FreeSpace(s.K, s.X_WC, 0.005, 0)
+    for i in range(0, s.n_frames, step):
+        if not out.tracked[i]:
+            continue
+        depth, mask = s.depth(i), s.mask(i)
+        vv, uu = np.nonzero(mask & (depth > 0))
+        dd = depth[vv, uu]
+        P_C = np.stack([(uu - s.K[0, 2]) / s.K[0, 0] * dd, (vv - s.K[1, 2]) / s.K[1, 1] * dd, dd], 1)
+        X_OC = X_inv(out.X_WO[i]) @ s.X_WC
+        seen.append(P_C[::4] @ X_OC[:3, :3].T + X_OC[:3, 3])
+        fs.add(i, depth, out.X_WO[i])
+    dseen, _ = cKDTree(np.concatenate(seen)).query(v)
+    sd = trimesh.proximity.signed_distance(mG, vG)  # > 0 inside the true surface
+    cp, _, _ = trimesh.proximity.closest_point(mG, vG)
+    concave = np.abs(trimesh.proximity.signed_distance(mG.convex_hull, cp)) > 0.003
+    z0 = (v @ out.X_WO[0][:3, :3].T + out.X_WO[0][:3, 3])[:, 2] - s.table_height
+    classes = {"seen <2mm": dseen < 0.002, "seen 2-7mm": (dseen >= 0.002) & (dseen < 0.007),
+               "closure >7mm from seen": dseen >= 0.007, "outside true": sd < 0, "inside true": sd >= 0,
+               "seen empty": fs.seen_through(v), "concave part": concave, "table <1cm": z0 < 0.01}
+    tot = max(float(d[obs].sum()), 1e-12)
+    return {k: [int((m & obs).sum()), float(1e3 * d[m & obs].mean()) if (m & obs).any() else 0.0,
+                float(d[m & obs].sum() / tot)] for k, m in classes.items()}
+
+
+def run_one(kind: str, path: Path, overrides: dict | None = None, diag: bool = False) -> dict:
     import trimesh
 
     from service.session import load_session
@@ -147,7 +187,10 @@ def run_one(kind: str, path: Path, overrides: dict | None = None) -> dict:
     t0 = time.perf_counter()
     from dataclasses import replace
 
-    out = run(TrackingInputs(s), replace(TrackingConfig(), **(overrides or {})), progress=progress)
+    over = dict(overrides or {})
+    if isinstance(over.get("sdf"), dict):  # --cfg '{"sdf": {"trunc_back": 0.003}}': fields of the SdfConfig
+        over["sdf"] = replace(TrackingConfig().sdf, **over["sdf"])
+    out = run(TrackingInputs(s), replace(TrackingConfig(), **over), progress=progress)
     wall = time.perf_counter() - t0
     ru = resource.getrusage(resource.RUSAGE_SELF)
     cpu = ru.ru_utime + ru.ru_stime - cpu0
@@ -181,6 +224,8 @@ def run_one(kind: str, path: Path, overrides: dict | None = None) -> dict:
                    trans_med_mm=float(1e3 * np.median(et)), trans_max_mm=float(1e3 * et.max()),
                    surface_mean_mm=float(1e3 * d[obs].mean()) if obs.any() else float("nan"),
                    surface_all_mean_mm=float(1e3 * d.mean()), V_mean_mm=float(1e3 * np.mean(dV)))
+        if diag:
+            res["surface_diag"] = surface_breakdown(s, out, mG, X_GO, d, obs)
     else:
         T = np.load(path / "bundlesdf_ob_in_cam.npz")["T_cam_obj"]
         keep = np.ones(len(T), bool)
@@ -244,9 +289,10 @@ def main() -> None:
     ap.add_argument("--kind", default="synth", choices=["synth", "real"])
     ap.add_argument("--work", type=Path, default=Path("/tmp/vysics-bench-tracking"))
     ap.add_argument("--cfg", default="{}", help='TrackingConfig overrides as JSON, e.g. \'{"ba_iters": 0}\'')
+    ap.add_argument("--surface-diag", action="store_true", help="also print where the surface error sits")
     a = ap.parse_args()
     if a.one:
-        print(json.dumps(run_one(a.kind, a.one, json.loads(a.cfg))))
+        print(json.dumps(run_one(a.kind, a.one, json.loads(a.cfg), a.surface_diag)))
         return
     print("command:", " ".join(shlex.quote(x) for x in [sys.executable] + sys.argv))
     rows = []
@@ -258,7 +304,8 @@ def main() -> None:
     if a.only in (None, "real"):
         rows.append(("real", REAL))
     for kind, d in rows:
-        p = subprocess.run([sys.executable, __file__, "--one", str(d), "--kind", kind, "--cfg", a.cfg],
+        p = subprocess.run([sys.executable, __file__, "--one", str(d), "--kind", kind, "--cfg", a.cfg]
+                           + (["--surface-diag"] if a.surface_diag else []),
                            capture_output=True, text=True)
         if p.returncode:
             print(f"{d.name}: FAILED\n{p.stderr[-2000:]}")
@@ -274,6 +321,8 @@ def main() -> None:
                   f"cumulative wall s {_m(r)}) | trans p90 {r['trans_p90_mm']:.2f} mm, world bias "
                   f"({r['world_bias_xy_mm'][0]:.1f}, {r['world_bias_xy_mm'][1]:.1f}) mm, after it med "
                   f"{r['trans_after_bias_med_mm']:.2f} mm")
+            for k, (n, mm, share) in r.get("surface_diag", {}).items():
+                print(f"    {k:24s} {n:6d} vertices, mean {mm:5.2f} mm, {100 * share:3.0f} % of the error")
         else:
             print(f"{r['session']:28s} vs BundleSDF (frames 0287-0360 excluded): rot med {r['rot_med_deg']:.2f}° "
                   f"p90 {r['rot_p90_deg']:.2f}° max {r['rot_max_deg']:.2f}° | trans med {r['trans_med_mm']:.1f} "

@@ -3,7 +3,7 @@
 Unknown: S, a (nx,ny,nz) grid of signed distances in O (m), trilinear between voxel centres.
 For a sample at camera depth z on a ray with observed object depth d (τ = truncation):
 
-- near-surface band, |z − d| ≤ τ:            w_s · ((S − (d − z)) / τ)²
+- near-surface band, −τ_b ≤ z − d ≤ τ:       w_s · ((S − (d − z)) / τ)²   (τ_b = cfg.trunc_back, default τ)
 - empty space, z < d − τ:                    w_e · |S/τ − 1| · [S < τ]          (one-sided toward +τ)
 - free ring rays with a non-object reading f, z < f − τ: the same empty-space term
 - free ring rays with no reading at all:     w_u · (S/τ − 0.1)² · [S < 0.1τ]     (uncertain free space)
@@ -118,6 +118,7 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None) ->
         bounds_O = default_bounds(rays, cfg.pad)
     origin, voxel, shape = make_grid_geometry(bounds_O, cfg.resolution)
     tau = float(cfg.trunc)
+    back = (tau if cfg.trunc_back is None else float(cfg.trunc_back)) / tau  # band depth behind the surface, in τ
 
     if init is not None:
         v0 = resample(init, origin, voxel, shape)
@@ -173,7 +174,7 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None) ->
         u = (torch.arange(ns, dtype=torch.float32) + torch.rand(B, ns, generator=gen)) / ns  # stratified (B,ns)
         un = (torch.arange(n_near, dtype=torch.float32) + torch.rand(B, n_near, generator=gen)) / n_near
         uf = (torch.arange(n_far, dtype=torch.float32) + torch.rand(B, n_far, generator=gen)) / n_far
-        z_near = dd[:, None] + tau * (3.0 * un - 2.0)  # [d − 2τ, d + τ]
+        z_near = dd[:, None] + tau * ((2.0 + back) * un - 2.0)  # [d − 2τ, d + τ_b]
         z_far = z0[:, None] + (z1 - z0).clamp(min=0)[:, None] * uf
         z_obj = torch.cat([z_near, z_far], 1)
         z_free = z0[:, None] + (z1 - z0).clamp(min=0)[:, None] * u
@@ -182,7 +183,7 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None) ->
         inside = ((p >= lo_t) & (p <= hi_t)).all(-1)
         S = query_fn(p.reshape(-1, 3)).reshape(B, ns) / tau
         diff = (dd[:, None] - z) / tau
-        band = isobj[:, None] & (diff.abs() <= 1.0) & inside
+        band = isobj[:, None] & (diff <= 1.0) & (diff >= -back) & inside
         empty = inside & ((isobj[:, None] & (diff > 1.0)) | (~isobj & ~isunc)[:, None] & (z < z1[:, None]))
         unc = inside & isunc[:, None]
         ww = w[:, None].expand(B, ns)

@@ -89,6 +89,13 @@ class SdfConfig:
     w_smooth: float = 20.0  # Laplacian smoothness, (ΔS·voxel/τ)² over the grid
     seed: int = 0
     threads: int = 1  # torch threads during the fit (small gathers: extra threads mostly contend)
+    trunc_back: float | None = None  # depth of the band behind the observed surface (m; None: trunc, BundleSDF's
+    # symmetric band). A surface reading only says the space right behind it is inside: with a band deeper than a
+    # wall (mug, 6 mm) or a wedge (prism ridge), the fit fills the cavity/air behind it (docs/tracking.md)
+
+    def __post_init__(self) -> None:
+        if self.trunc_back is not None and not 0 < self.trunc_back <= self.trunc:
+            raise ValueError(f"SdfConfig.trunc_back must be in (0, trunc = {self.trunc}] or None, not {self.trunc_back!r}")
 
     @classmethod
     def fast(cls) -> "SdfConfig":

@@ -1,8 +1,16 @@
 """Rays for the visible-geometry SDF and the visible point set V (Vysics §IV-A).
 
-Rays: from up to ``sdf_frames`` tracked frames, object pixels (mask, depth, above the table) whose back-projected
+Rays: from up to ``sdf_frames`` tracked frames, object pixels (mask, depth, above the table; with
+``sdf_drop_flying`` not at a depth jump, ``smooth_depth``) whose back-projected
 point lies within ``sdf_denoise`` of the tracked object model (BundleSDF drops rays > 2 cm from its point
 cloud), plus free rays in the dilated ring around the mask; all expressed in O with the tracked X_OC = X_OW X_WC.
+
+Carved initialisation (``carved_init``, ``sdf_carve_init``): the fit starts from the convex hull of the observed
+surface points, which also fills whatever lies between them — the mouth and the cavity of an open mug, the air
+beside a prism's ridge. Voxels of the hull that a keyframe saw through (``FreeSpace``: the depth reading there
+lies more than the carve margin behind the voxel) are set outside, S ← max(S, ``sdf_carve_value``), before the
+fit; the free-space term of the fit alone, an L1 push of weight 1 against the band term's 3000, leaves most of
+them filled.
 
 V: vertices of the convex hull of the visible mesh plus ``visible_samples`` area-uniform samples on the hull,
 kept when, in at least one checked frame, the point projects inside the object mask with observed depth
@@ -32,6 +40,22 @@ def below_table_halfspace(X_WO0: np.ndarray, table_height: float) -> np.ndarray:
     return np.concatenate([-X_WO0[2, :3], [table_height - X_WO0[2, 3]]])
 
 
+def smooth_depth(depth: np.ndarray, jump: float) -> np.ndarray:
+    """(H,W) bool: pixels with a reading whose four neighbours all have one within ``jump`` + 2 % of the depth
+    (the flying-pixel test of the tracking points). A depth sensor blends the near and far surface at a depth
+    discontinuity (flying pixels); inside the mask these are the rim of a mug against its far inner wall or one
+    step of a block against another, which the symmetric erosion of the mask does not remove."""
+    d = np.asarray(depth, np.float32)
+    ok = d > 0
+    tol = jump + 0.02 * d
+    p = np.pad(d, 1, mode="edge")
+    H, W = d.shape
+    for dv, du in ((0, 1), (2, 1), (1, 0), (1, 2)):
+        nb = p[dv:dv + H, du:du + W]
+        ok &= (nb > 0) & (np.abs(nb - d) < tol)
+    return ok
+
+
 def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng: np.random.Generator,
              carver=None) -> RaySet:
     """Depth rays in O of ``frames`` (see module docstring). ``carver``: optional
@@ -52,7 +76,10 @@ def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng
         if cfg.sdf_erode_px > 0:  # mask edges mix object and background depth (edge fattening of depth sensors)
             k = 2 * cfg.sdf_erode_px + 1
             m_obj = cv2.erode(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))) > 0
-        v, u = np.nonzero(m_obj & (depth > 0) & grid)
+        sel = m_obj & (depth > 0) & grid
+        if cfg.sdf_drop_flying:  # depth jumps inside the mask: flying pixels between the near and far surface
+            sel &= smooth_depth(depth, cfg.edge_jump)
+        v, u = np.nonzero(sel)
         d = depth[v, u]
         P_C = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], 1)
         P_O = P_C @ X_OC[:3, :3].T + X_OC[:3, 3]
@@ -90,6 +117,25 @@ def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng
                                       f"the free space seen by the keyframes (more than {cfg.carve_frame_frac:.0%} of "
                                       "their object points seen through): the track is wrong")
     return RaySet.concatenate(parts)
+
+
+def carved_init(rays: RaySet, sdf_cfg, carver, value: float) -> "SdfGrid":
+    """Initial SDF (the grid ``fit_sdf`` will use for ``rays`` and ``sdf_cfg``): the convex hull of the observed
+    surface points, S = max over hull facets, with the voxels ``carver`` (``FreeSpace``) sees through set to at
+    least ``value`` (m, > 0: outside)."""
+    from service.sdf import SdfGrid
+    from service.sdf.fit import default_bounds, hull_sdf, make_grid_geometry
+    from service.sdf.grid import grid_points
+
+    origin, voxel, shape = make_grid_geometry(default_bounds(rays, sdf_cfg.pad), sdf_cfg.resolution)
+    P = grid_points(origin, voxel, shape).reshape(-1, 3)
+    S = hull_sdf(rays.surface_points_O, P)
+    inside = S < value
+    if inside.any():
+        st = carver.seen_through(P[inside])
+        idx = np.nonzero(inside)[0][st]
+        S[idx] = value
+    return SdfGrid(origin_O=origin, voxel=voxel, values=S.reshape(shape).astype(np.float32))
 
 
 def visible_points(session, X_WO: np.ndarray, frames: np.ndarray, mesh: Mesh, cfg,
