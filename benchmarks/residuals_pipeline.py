@@ -9,7 +9,7 @@ error of the true effect's candidate on its own held-out frames before -> after.
 
     python benchmarks/residuals_pipeline.py [--preset small] [--frames N] [--seed 21] [--object milk_carton]
         [--interaction push|strike] [--mu 0.15] [--residual-config JSON] [--cases none clock_offset ...]
-        [--work DIR] [--diagnose [--loops MODEL@POSES ...]]
+        [--fusion-config JSON] [--work DIR] [--diagnose [--loops MODEL@POSES ...]]
 
 ``--interaction strike``: impulsive pushes, the object slides free (baking box by default, declared table
 friction 0.15, the hidden values of ``benchmarks/residuals.py strike``; cases none, friction_object_table,
@@ -338,6 +338,9 @@ def main() -> None:
     ap.add_argument("--pipeline-preset", default="default")
     ap.add_argument("--residual-config", default=None,
                     help='JSON overrides of the residual stage config, e.g. \'{"max_base_error_rel_learned": 0.08}\'')
+    ap.add_argument("--fusion-config", default=None,
+                    help='JSON overrides of the fusion stage config, e.g. \'{"sdf": {"trunc_back": 0.003}}\' (stored '
+                         'tracking and contact outputs are reused; fusion and what follows are recomputed)')
     ap.add_argument("--bundle-check", action="store_true",
                     help="with --loops: write a bundle (the flow's assembly) from the stored stage outputs and the "
                          "first loop run that accepted an effect, and show what reached report.json and the URDF")
@@ -358,7 +361,10 @@ def main() -> None:
     a.object = a.object or ("baking_box" if strike else "milk_carton")
     a.cases = a.cases or list(cases)
     mu = a.mu if a.mu is not None else (STRIKE_MU if strike else None)
-    config = {"residuals": json.loads(a.residual_config)} if a.residual_config else None
+    config = {"residuals": json.loads(a.residual_config)} if a.residual_config else {}
+    if a.fusion_config:
+        config["fusion"] = json.loads(a.fusion_config)
+    config = config or None
     work = Path(a.work)
     data_dir = work / "data"
     os.environ["VYSICS_DATA_DIR"] = str(data_dir)
@@ -367,7 +373,8 @@ def main() -> None:
     from workers.cli import process
 
     frames = f" --frames {a.frames}" if a.frames else ""
-    extra = (f" --mu {a.mu}" if a.mu is not None else "") + (f" --residual-config '{a.residual_config}'" if config else "")
+    extra = ((f" --mu {a.mu}" if a.mu is not None else "") + (f" --residual-config '{a.residual_config}'" if a.residual_config else "")
+             + (f" --fusion-config '{a.fusion_config}'" if a.fusion_config else ""))
     print(f"# python benchmarks/residuals_pipeline.py --preset {a.preset}{frames} --seed {a.seed} --object {a.object} "
           f"--interaction {a.interaction}{extra} --cases {' '.join(a.cases)}{' --diagnose' if a.diagnose else ''}")
     print("case | true | accepted (fitted) | corrections | held-out all frames: learned -> corrected -> after (mm) | "
