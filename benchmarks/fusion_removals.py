@@ -7,6 +7,12 @@ without evidence (``thin_open_radius`` 5 mm). Prints per session and on average 
 and the voxels removed; with ``--dynamics`` also the fused model's open-loop rollout figures for "off" and "carve".
 
     python benchmarks/fusion_removals.py /tmp/bench11-data [--dynamics] [session names ...]
+
+``--trunc-back MM [MM ...]``: instead, the default configuration against the same with a shallower band behind the
+observed surface in the fit (``FusionConfig.sdf.trunc_back``, millimetres; ``none`` = τ, the symmetric band);
+``--dynamics`` then rolls out every variant.
+
+    python benchmarks/fusion_removals.py /tmp/geo/bench11_after_data --trunc-back 3 5
 """
 
 from __future__ import annotations
@@ -25,6 +31,8 @@ def main() -> None:
     ap.add_argument("data", type=Path)
     ap.add_argument("names", nargs="*", help="only these sessions (names as in the ingest metrics)")
     ap.add_argument("--dynamics", action="store_true")
+    ap.add_argument("--trunc-back", nargs="+", default=None, metavar="MM",
+                    help="compare FusionConfig() with sdf.trunc_back set to these values (mm, or 'none')")
     a = ap.parse_args()
 
     import service.evaluation as evaluation
@@ -47,6 +55,11 @@ def main() -> None:
     variants = {"off": dataclasses.replace(base, carve_free_space=False, thin_open_radius=0.0),
                 "carve": dataclasses.replace(base, carve_free_space=True, thin_open_radius=0.0),
                 "carve+thin": dataclasses.replace(base, carve_free_space=True, thin_open_radius=0.005)}
+    if a.trunc_back:
+        variants = {"default": base}
+        for v in a.trunc_back:
+            tb = None if v.lower() == "none" else float(v) * 1e-3
+            variants[f"trunc_back {v}"] = dataclasses.replace(base, sdf=dataclasses.replace(base.sdf, trunc_back=tb))
     ecfg = EvaluationConfig()
     rows = []
     for m in sorted(manifests("contact"), key=lambda m: ingest[m["inputs"]["session"]]["name"]):
@@ -73,7 +86,7 @@ def main() -> None:
             txt = (f"{name}: chamfer {r['chamfer_cm']:.2f} cm, IoU {r['iou']:.2f}, volume {r['vol']:.3f} L, hull "
                    f"{r['hull']:.3f} L (true {r['true']:.3f} L), carved {fu.metrics['carved_voxels']:.0f}, thin "
                    f"{fu.metrics['thin_unsupported_voxels']:.0f} voxels [{cpu:.0f} s CPU]")
-            if a.dynamics and name in ("off", "carve"):
+            if a.dynamics and (a.trunc_back or name in ("off", "carve")):
                 ev = evaluation.run(EvaluationInputs(session=session, t=tr.t, X_WO=tr.X_WO, tracked=tr.tracked,
                                                      meshes={"fused": fu.mesh},
                                                      models={"fused": assemble_model(session, co, fu.mesh)}), ecfg)
