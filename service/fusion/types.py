@@ -146,6 +146,13 @@ class FusionConfig:
         if self.table_points not in ("footprint", "planes", "hull", "points"):
             raise ValueError("FusionConfig.table_points must be 'footprint', 'planes', 'hull' or 'points', "
                              f"got {self.table_points!r}")
+        for name in ("carve_margin", "carve_radius_px", "thin_open_radius", "thin_support"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"FusionConfig.{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0 <= self.carve_min_frac <= 1:
+            raise ValueError(f"FusionConfig.carve_min_frac must be a fraction in [0, 1], got {self.carve_min_frac!r}")
+        if not self.carve_min_frames >= 1:
+            raise ValueError(f"FusionConfig.carve_min_frames must be >= 1, got {self.carve_min_frames!r}")
 
     @classmethod
     def fast(cls) -> "FusionConfig":

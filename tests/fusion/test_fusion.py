@@ -253,3 +253,11 @@ def test_seen_through_fin_is_carved_and_unsupported_thin_part_removed(scene):
 
     # carving keeps the rest of the object (what 3 steps from the one-sided visible start have of it)
     assert below_top(carved.sdf) == pytest.approx(below_top(keep.sdf), rel=0.02) and below_top(keep.sdf) > 0
+
+
+@pytest.mark.parametrize("field, value", [("carve_margin", -0.01), ("carve_radius_px", -1), ("carve_min_frac", 1.5),
+                                          ("carve_min_frames", 0), ("thin_open_radius", -0.005),
+                                          ("thin_support", float("nan"))])
+def test_config_refuses_bad_removal_settings(field, value):
+    with pytest.raises(ValueError, match=f"FusionConfig.{field}"):
+        FusionConfig(**{field: value})
