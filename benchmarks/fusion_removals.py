@@ -34,6 +34,8 @@ def main() -> None:
     ap.add_argument("--trunc-back", nargs="+", default=None, metavar="MM",
                     help="compare FusionConfig() with sdf.trunc_back set to these values (mm, or 'none')")
     a = ap.parse_args()
+    if not (a.data / "artifacts" / "fusion").is_dir():
+        ap.error(f"{a.data}: not a flow data folder with stored stage outputs (no artifacts/fusion/ in it)")
 
     import service.evaluation as evaluation
     from service.bundle import assemble_model

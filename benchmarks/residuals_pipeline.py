@@ -361,9 +361,16 @@ def main() -> None:
     a.object = a.object or ("baking_box" if strike else "milk_carton")
     a.cases = a.cases or list(cases)
     mu = a.mu if a.mu is not None else (STRIKE_MU if strike else None)
-    config = {"residuals": json.loads(a.residual_config)} if a.residual_config else {}
-    if a.fusion_config:
-        config["fusion"] = json.loads(a.fusion_config)
+    config = {}
+    for stage, text, flag in (("residuals", a.residual_config, "--residual-config"),
+                              ("fusion", a.fusion_config, "--fusion-config")):
+        if text:
+            try:
+                config[stage] = json.loads(text)
+            except json.JSONDecodeError as e:
+                ap.error(f"{flag}: not JSON ({e})")
+            if not isinstance(config[stage], dict):
+                ap.error(f"{flag}: expected a JSON object of {stage} config fields")
     config = config or None
     work = Path(a.work)
     data_dir = work / "data"
