@@ -45,6 +45,20 @@ def backproject(depth: np.ndarray, K: np.ndarray, u: np.ndarray, v: np.ndarray) 
     return np.stack([x, y, d], 1)
 
 
+def depth_continuous(depth: np.ndarray, u: np.ndarray, v: np.ndarray, jump: float) -> np.ndarray:
+    """(N,) bool: pixels (u,v) (N,) of depth (H,W) metres with a reading whose four neighbours (clamped at the
+    border) all have one within ``jump`` + 2 % of its depth. A depth sensor blends the near and far surface at a
+    depth discontinuity (flying pixels); these fail the test."""
+    H, W = depth.shape
+    d0 = depth[v, u]
+    tol = jump + 0.02 * d0
+    ok = d0 > 0
+    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        nb = depth[np.clip(v + dv, 0, H - 1), np.clip(u + du, 0, W - 1)]
+        ok &= (nb > 0) & (np.abs(nb - d0) < tol)
+    return ok
+
+
 def pixel_normals(depth: np.ndarray, K: np.ndarray, u: np.ndarray, v: np.ndarray, step: int = 2
                   ) -> tuple[np.ndarray, np.ndarray]:
     """Camera-frame unit normals (N,3) at pixels (u,v) from central differences of the back-projected depth at

@@ -44,8 +44,8 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from service.tracking.geometry import (IcpResult, backproject, color_gradients, crease_points, icp, pixel_normals,
-                                       ransac_rigid)
+from service.tracking.geometry import (IcpResult, backproject, color_gradients, crease_points, depth_continuous, icp,
+                                       pixel_normals, ransac_rigid)
 from service.tracking.types import TrackingConfig
 from service.transforms import X_inv, make_X, rotation_angle, so3_exp, so3_log
 
@@ -134,13 +134,7 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
         sel = rng.choice(len(u), 2 * cfg.max_points, replace=False)
         u, v = u[sel], v[sel]
     # flying pixels: large depth jump to a 4-neighbour; normals from ±2 px differences
-    H, W = depth.shape
-    d0 = depth[v, u]
-    jump = cfg.edge_jump + 0.02 * d0
-    good = np.ones(len(u), bool)
-    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        nb = depth[np.clip(v + dv, 0, H - 1), np.clip(u + du, 0, W - 1)]
-        good &= (nb > 0) & (np.abs(nb - d0) < jump)
+    good = depth_continuous(depth, u, v, cfg.edge_jump)
     N_C, nok = pixel_normals(depth, K, u, v, step=2)
     good &= nok
     u, v, N_C = u[good], v[good], N_C[good]

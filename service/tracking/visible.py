@@ -41,19 +41,13 @@ def below_table_halfspace(X_WO0: np.ndarray, table_height: float) -> np.ndarray:
 
 
 def smooth_depth(depth: np.ndarray, jump: float) -> np.ndarray:
-    """(H,W) bool: pixels with a reading whose four neighbours all have one within ``jump`` + 2 % of the depth
-    (the flying-pixel test of the tracking points). A depth sensor blends the near and far surface at a depth
-    discontinuity (flying pixels); inside the mask these are the rim of a mug against its far inner wall or one
+    """(H,W) bool: ``geometry.depth_continuous`` over every pixel of depth (H,W) (the flying-pixel test of the
+    tracking points). Inside the mask the flying pixels are the rim of a mug against its far inner wall or one
     step of a block against another, which the symmetric erosion of the mask does not remove."""
-    d = np.asarray(depth, np.float32)
-    ok = d > 0
-    tol = jump + 0.02 * d
-    p = np.pad(d, 1, mode="edge")
-    H, W = d.shape
-    for dv, du in ((0, 1), (2, 1), (1, 0), (1, 2)):
-        nb = p[dv:dv + H, du:du + W]
-        ok &= (nb > 0) & (np.abs(nb - d) < tol)
-    return ok
+    from service.tracking.geometry import depth_continuous
+
+    v, u = np.indices(depth.shape).reshape(2, -1)
+    return depth_continuous(np.asarray(depth), u, v, jump).reshape(depth.shape)
 
 
 def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng: np.random.Generator,
