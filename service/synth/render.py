@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import hashlib
 import os
 import tempfile
 
@@ -66,8 +67,27 @@ def object_texture(rgba, rng: np.random.Generator, size: int = 256) -> np.ndarra
     return np.clip(img, 0, 255).astype(np.uint8)
 
 
+def object_atlas(rgba, rng: np.random.Generator, size: int = 256) -> np.ndarray:
+    """Texture atlas (2*size, 3*size, 3) uint8 RGB: one printed-carton tile per side direction.
+
+    Tile (row, col) = divmod(2*axis + (normal > 0), 3) holds the print of the sides whose normal is
+    dominated by +-x, +-y or +-z, so opposite sides of a box and the quadrants around a body of
+    revolution carry different prints, as real packaging does. The first tile draws from ``rng`` as
+    a single texture always did; the other five come from a generator seeded by that tile's pixels,
+    so the rest of the session's random draws do not change.
+    """
+    first = object_texture(rgba, rng, size)
+    sub = np.random.default_rng(np.frombuffer(hashlib.sha256(first.tobytes()).digest()[:8], np.uint64))
+    tiles = [first] + [object_texture(rgba, sub, size) for _ in range(5)]
+    return np.concatenate([np.concatenate(tiles[r * 3:(r + 1) * 3], axis=1) for r in range(2)], axis=0)
+
+
 def _visual_mesh(mesh, smooth_deg: float = 35.0) -> tuple[list, list, list, list]:
-    """Unshared vertices with auto-smoothed normals (flat across sharp edges) and box-projected UVs."""
+    """Unshared vertices with auto-smoothed normals (flat across sharp edges) and box-projected UVs.
+
+    Each face takes the two axes orthogonal to its dominant normal axis, mapped into the atlas tile of
+    its signed dominant direction (``object_atlas``).
+    """
     V = np.asarray(mesh.vertices, float)
     F = np.asarray(mesh.faces, np.int64)
     fn = np.asarray(mesh.face_normals, float)
@@ -78,11 +98,16 @@ def _visual_mesh(mesh, smooth_deg: float = 35.0) -> tuple[list, list, list, list
     cos = np.sum(vnf * fnf, axis=1)
     normals = np.where((cos > np.cos(np.radians(smooth_deg)))[:, None], vnf, fnf)
     idx = np.arange(len(verts))
-    # box projection: each face takes the two axes orthogonal to its dominant normal axis
     span = 1.05 * float(np.max(mesh.extents))
-    dom = np.repeat(np.argmax(np.abs(fn), axis=1), 3)
+    dom_f = np.argmax(np.abs(fn), axis=1)
+    tile_f = 2 * dom_f + (fn[np.arange(len(fn)), dom_f] > 0)
+    dom = np.repeat(dom_f, 3)
+    row, col = np.divmod(np.repeat(tile_f, 3), 3)
     other = np.array([[1, 2], [0, 2], [0, 1]])[dom]
-    uv = np.take_along_axis(verts, other, axis=1) / span + 0.5
+    centre = np.asarray(mesh.bounds, float).mean(axis=0)
+    uv = np.clip(np.take_along_axis(verts - centre, other, axis=1) / span + 0.5, 0.0, 1.0)
+    # texture v runs from the image's top row down; tiles are laid out in rows of three
+    uv = np.stack([(col + uv[:, 0]) / 3.0, (row + uv[:, 1]) / 2.0], axis=1)
     return verts.tolist(), idx.tolist(), normals.tolist(), uv.tolist()
 
 
@@ -168,7 +193,7 @@ class Renderer:
         self.obj = pb.createMultiBody(0, -1, ov, [0, 0, -10], physicsClientId=c)
         with tempfile.TemporaryDirectory(prefix="vysics-synth-tex-") as tdir:
             tex_file = os.path.join(tdir, "object.png")
-            cv2.imwrite(tex_file, cv2.cvtColor(object_texture(obj.rgba, rng), cv2.COLOR_RGB2BGR))
+            cv2.imwrite(tex_file, cv2.cvtColor(object_atlas(obj.rgba, rng), cv2.COLOR_RGB2BGR))
             tex = pb.loadTexture(tex_file, physicsClientId=c)
         pb.changeVisualShape(self.obj, -1, textureUniqueId=tex, physicsClientId=c)
         sv = pb.createVisualShape(pb.GEOM_SPHERE, radius=EE_RADIUS, rgbaColor=[0.75, 0.75, 0.78, 1], physicsClientId=c)
