@@ -100,6 +100,7 @@ def real(args) -> None:
     cfg = ResidualConfig(
         seed=args.seed, candidates=tuple(args.candidates), max_train_segments=args.train_segments,
         max_heldout_segments=args.heldout_segments, fit_maxiter=args.fit_maxiter, max_effects=args.max_effects,
+        unit_statistic=args.unit_statistic,
     )
     t0 = time.time()
     out = run(ResidualInputs(cube_model(), trajs, 0.0), cfg,
@@ -124,23 +125,37 @@ def synthetic(args) -> None:
              ({"angular_damping": 2.0}, "angular_damping")]
     cands = ("gravity_scale", "restitution", "table_offset", "linear_damping", "angular_damping")
     # 12 training blocks and 24 evaluations per fit, as tests/residuals/test_recover_angular_damping.py
-    cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, max_train_segments=12, fit_maxiter=24)
+    cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, max_train_segments=12, fit_maxiter=24,
+                              unit_statistic=args.unit_statistic)
+    import resource
+
     rows = []
+    t_all, c_all = time.time(), resource.getrusage(resource.RUSAGE_SELF).ru_utime
     if args.cases:
         cases = [c for c in cases if (c[1] or "none") in args.cases]
     for hidden, key in cases:
         for seed in args.seeds:
+            t0, c0 = time.time(), resource.getrusage(resource.RUSAGE_SELF).ru_utime
             trajs = simulate_tosses(lab_cube(), hidden, n=20, seed=seed, noise_m=1.5e-4)
             out = run(ResidualInputs(lab_cube(), trajs, 0.0), dataclasses.replace(cfg, seed=seed))
             ok = out.accepted == ((key,) if key else ())
             val = out.effects.get(key) if key else None
             rows.append((hidden, seed, ok, out.accepted, val, out.error_before["scalar_m"], out.error_after["scalar_m"]))
+            own = ""
+            if key:  # the hidden effect's own candidate: fitted value, its frames before -> after, decision
+                c = {c.effect: c for c in out.candidates}[key]
+                own = (f"; {key} fitted {json.dumps({k: round(v, 4) for k, v in c.params.items()})}, its frames "
+                       f"{c.heldout_error_before * 1e3:.2f} -> {c.heldout_error_after * 1e3:.2f} mm, "
+                       f"{c.reason.split(';')[0]} ({c.reason.split(';', 1)[-1].strip()})")
             print(f"hidden {json.dumps(hidden):28s} seed {seed}: accepted {list(out.accepted)} {json.dumps(out.effects)} "
                   f"held-out {out.error_before['scalar_m'] * 1e3:.3f} -> {out.error_after['scalar_m'] * 1e3:.3f} mm "
                   f"(position {out.error_before['pos_err_m'] * 1e3:.3f} -> {out.error_after['pos_err_m'] * 1e3:.3f} mm, "
                   f"rotation {out.error_before['rot_err_deg']:.3f} -> {out.error_after['rot_err_deg']:.3f} deg) "
-                  f"{'OK' if ok else 'WRONG'}", flush=True)
-    print(f"toss cases, correct decisions: {sum(r[2] for r in rows)}/{len(rows)}")
+                  f"{'OK' if ok else 'WRONG'}{own}; {time.time() - t0:.0f} s wall, "
+                  f"{resource.getrusage(resource.RUSAGE_SELF).ru_utime - c0:.0f} s cpu", flush=True)
+    wrong = [r for r in rows if r[3] and not r[2]]
+    print(f"toss cases, correct decisions: {sum(r[2] for r in rows)}/{len(rows)}; cases with a wrong effect accepted: "
+          f"{len(wrong)}; {time.time() - t_all:.0f} s wall, {resource.getrusage(resource.RUSAGE_SELF).ru_utime - c_all:.0f} s cpu")
     if args.no_pushing:
         return
     # one pushing session (30 Hz, 12 strokes), hidden object-table friction 0.5 against the prior 0.26
@@ -150,7 +165,7 @@ def synthetic(args) -> None:
     for seed in args.seeds[:2]:
         tr, path = push_session(base, {"friction_object_table": 0.5}, seed=seed, noise_m=3e-4, strokes=12)
         pcfg = dataclasses.replace(ResidualConfig.fast(), candidates=("friction_table", "clock_offset", "restitution"),
-                                   segment_s=0.5, seed=seed)
+                                   segment_s=0.5, seed=seed, unit_statistic=args.unit_statistic)
         out = run(ResidualInputs(base, (tr,), 0.0, robot=(path,)), pcfg)
         c = {c.effect: c for c in out.candidates}["friction_table"]
         print(f"pushing, hidden friction_object_table 0.5, seed {seed}: accepted {list(out.accepted)}; "
@@ -181,7 +196,7 @@ def lab(args) -> None:
 
     cands = ("clock_offset", "friction_table", "table_tilt", "linear_damping", "restitution")
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, max_train_segments=10,
-                              nuisance=() if args.exact_model else NUISANCE_LEARNED)
+                              nuisance=() if args.exact_model else NUISANCE_LEARNED, unit_statistic=args.unit_statistic)
     for case in args.cases:
         hidden, name, key = LAB_CASES[case]
         for seed in args.seeds:
@@ -257,7 +272,8 @@ def strike(args) -> None:
                                        effects=HiddenEffects(**hidden)))
             cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, seed=seed,
                                       fit_maxiter=24, max_train_segments=10,
-                                      nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70)
+                                      nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
+                                      unit_statistic=args.unit_statistic)
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
             out = run(ResidualInputs(model, (ls.trajectory,), ls.table_height, robot=(ls.robot,)), cfg)
@@ -328,6 +344,11 @@ def main() -> None:
     st.add_argument("--mu", type=float, default=0.15)
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
+    for sp in (r, s, lb, st):
+        sp.add_argument("--unit-statistic", choices=("relative", "mean"), default="relative",
+                        help="held-out test over units (docs/residuals.md §4 rule 2): relative = bound on the mean of "
+                             "clipped per-unit relative improvements; mean = the earlier rule (mean of per-unit "
+                             "differences in metres)")
     args = ap.parse_args()
     print("command:", " ".join(["python", *sys.argv]))
     {"real": real, "synthetic": synthetic, "lab": lab, "strike": strike}[args.cmd](args)

@@ -24,9 +24,12 @@ clipped to the bounds.
 
 Selection (greedy forward): in each round every remaining candidate is fitted on top of the effects
 already accepted; on the held-out blocks where it acts, d_s = e_s(before) − e_s(after). A candidate passes when
-(a) mean(d)/mean(e_before) ≥ ``min_rel_improvement``; (b) the one-sided (1 − α) percentile-bootstrap
-lower bound of mean(d), resampling held-out units (trajectories, or blocks for one long session), is
-> 0; (c) a one-sided sign test over blocks (ties |d| ≤ ``tie_tol_rel``·median(e_before) dropped) gives
+(a) mean(d)/mean(e_before) ≥ ``min_rel_improvement``; (b) with each held-out unit's (trajectory's, or
+block's for one long session) relative improvement r_u = (b̄_u − ā_u)/max(b̄_u, ā_u) of its mean errors
+before and after, the one-sided (1 − α) Student-t lower bound of mean_u(r_u) is > 0 (r_u is bounded in
+(−1, 1), so a few units whose rollouts diverge after a bounce cannot dominate the test, as they dominated
+the mean of d_u; ``ResidualConfig.unit_statistic = "mean"`` gives the earlier rule: percentile bootstrap of
+mean_u(d_u)); (c) a one-sided sign test over blocks (ties |d| ≤ ``tie_tol_rel``·median(e_before) dropped) gives
 p < α — robust to the few chaotic blocks where any tiny change flips a contact outcome; and (d) the
 fitted parameter is farther than its resolution from the no-effect value; and (e) the mean error over
 all frames of all held-out blocks does not grow (an effect that helps its own frames but hurts the
@@ -58,6 +61,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 from scipy.stats import binom
+from scipy.stats import t as student_t
 
 from service.errors import InvalidInput
 from service.model import ObjectModel
@@ -539,32 +543,58 @@ def _refine_joint(nuis: dict[str, tuple], eff: Effect, theta, chosen: dict[str, 
     return {e.name: parts[i] for i, e in enumerate(effs[:-1])}, eff.clip(parts[-1])
 
 
-def _bootstrap_bound(d_seg: np.ndarray, units: np.ndarray, cfg: ResidualConfig, rng, upper: bool = False) -> float:
-    """One-sided (1 − α) percentile-bootstrap bound of the mean of per-unit mean improvements."""
+def unit_improvements(before: np.ndarray, after: np.ndarray, units: np.ndarray, statistic: str = "relative") -> np.ndarray:
+    """Per held-out unit u, its improvement from paired block errors (S,) → (U,).
+
+    ``"relative"``: r_u = (b̄_u − ā_u) / max(b̄_u, ā_u), with b̄_u, ā_u the unit's mean block errors before and
+    after: 1 − ā/b̄ when the unit gets better, b̄/ā − 1 when it gets worse. In (−1, 1); ≈ log(b̄_u/ā_u) for small
+    changes; swapping the two models flips its sign; a unit whose rollout diverges counts at most −1 (or +1).
+    ``"mean"`` (earlier rule): d_u = b̄_u − ā_u in metres.
+    """
     _, inv = np.unique(units, return_inverse=True)
-    d = np.bincount(inv, weights=d_seg) / np.bincount(inv)
-    idx = rng.integers(0, len(d), size=(cfg.n_bootstrap, len(d)))
-    boots = d[idx].mean(1)
-    return float(np.quantile(boots, 1.0 - cfg.alpha if upper else cfg.alpha))
+    n = np.bincount(inv)
+    b = np.bincount(inv, weights=before) / n
+    a = np.bincount(inv, weights=after) / n
+    if statistic == "mean":
+        return b - a
+    return (b - a) / np.maximum(np.maximum(b, a), 1e-12)
+
+
+def unit_lower_bound(x: np.ndarray, cfg: ResidualConfig, rng) -> float:
+    """One-sided (1 − α) lower confidence bound of the mean of per-unit values x (U,).
+
+    ``"relative"``: Student-t, mean − t_{1−α, U−1} s/√U (x is bounded, so its mean is near normal already for
+    U ≈ 10 held-out tosses, where a percentile bootstrap is too narrow: 7.7 % instead of 5 % false passes on
+    normal noise with U = 10). ``"mean"`` (earlier rule): percentile bootstrap, resampling units.
+    """
+    if cfg.unit_statistic == "mean":
+        idx = rng.integers(0, len(x), size=(cfg.n_bootstrap, len(x)))
+        return float(np.quantile(x[idx].mean(1), cfg.alpha))
+    if len(x) < 2:
+        return -math.inf
+    return float(x.mean() - student_t.ppf(1.0 - cfg.alpha, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
 
 
 def _decide(before: np.ndarray, after: np.ndarray, units: np.ndarray, cfg: ResidualConfig, rng) -> tuple[bool, str, float]:
-    """Acceptance rule on paired held-out errors (see the module docstring)."""
+    """Acceptance rule on paired held-out errors (see the module docstring and docs/residuals.md §4)."""
     d_seg = before - after
     mb = float(before.mean())
     rel = float(d_seg.mean() / mb) if mb > 0 else 0.0
-    n_units = len(np.unique(units))
-    lower = _bootstrap_bound(d_seg, units, cfg, rng)
+    x = unit_improvements(before, after, units, cfg.unit_statistic)
+    lower = unit_lower_bound(x, cfg, rng)
     tol = cfg.tie_tol_rel * float(np.median(before))
     n_pos, n_neg = int(np.sum(d_seg > tol)), int(np.sum(d_seg < -tol))
     p_sign = float(binom.sf(n_pos - 1, n_pos + n_neg, 0.5)) if n_pos + n_neg else 1.0
-    why = (f"held-out error {rel:+.1%} (relative fall), bootstrap {1 - cfg.alpha:.0%} lower bound "
-           f"{lower:+.2e} m over {n_units} units, better/worse on {n_pos}/{n_neg} of {len(d_seg)} blocks "
+    bound = (f"bootstrap {1 - cfg.alpha:.0%} lower bound {lower:+.2e} m of the mean improvement over {len(x)} units"
+             if cfg.unit_statistic == "mean" else
+             f"{1 - cfg.alpha:.0%} lower bound {lower:+.3f} of the mean relative improvement over {len(x)} units "
+             f"(mean {x.mean():+.3f}, {int(np.sum(x > 0))} better, {int(np.sum(x < 0))} worse)")
+    why = (f"held-out error {rel:+.1%} (relative fall), {bound}, better/worse on {n_pos}/{n_neg} of {len(d_seg)} blocks "
            f"(sign test p={p_sign:.3f})")
     if rel < cfg.min_rel_improvement:
         return False, f"rejected: fall below {cfg.min_rel_improvement:.0%}; " + why, rel
     if lower <= 0:
-        return False, "rejected: mean improvement not above noise; " + why, rel
+        return False, "rejected: improvement over held-out units not above noise; " + why, rel
     if p_sign >= cfg.alpha:
         return False, "rejected: improvement not consistent across blocks; " + why, rel
     return True, "passes; " + why, rel
