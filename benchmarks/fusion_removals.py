@@ -13,6 +13,11 @@ observed surface in the fit (``FusionConfig.sdf.trunc_back``, millimetres; ``non
 ``--dynamics`` then rolls out every variant.
 
     python benchmarks/fusion_removals.py /tmp/geo/bench11_after_data --trunc-back 3 5
+
+``--variants NAME=JSON ...``: instead, the default configuration against the same with each set of ``FusionConfig``
+overrides (nested ``sdf`` fields allowed), e.g.
+
+    python benchmarks/fusion_removals.py /tmp/me/bench11_final_data --variants 'no flying filter={"drop_flying": false}'
 """
 
 from __future__ import annotations
@@ -33,6 +38,8 @@ def main() -> None:
     ap.add_argument("--dynamics", action="store_true")
     ap.add_argument("--trunc-back", nargs="+", default=None, metavar="MM",
                     help="compare FusionConfig() with sdf.trunc_back set to these values (mm, or 'none')")
+    ap.add_argument("--variants", nargs="+", default=None, metavar="NAME=JSON",
+                    help="compare FusionConfig() with these overrides (JSON object; 'sdf' may hold SdfConfig fields)")
     a = ap.parse_args()
     if not (a.data / "artifacts" / "fusion").is_dir():
         ap.error(f"{a.data}: not a flow data folder with stored stage outputs (no artifacts/fusion/ in it)")
@@ -62,6 +69,18 @@ def main() -> None:
         for v in a.trunc_back:
             tb = None if v.lower() == "none" else float(v) * 1e-3
             variants[f"trunc_back {v}"] = dataclasses.replace(base, sdf=dataclasses.replace(base.sdf, trunc_back=tb))
+    if a.variants:
+        variants = {"default": base}
+        for v in a.variants:
+            name, sep, text = v.partition("=")
+            try:
+                over = json.loads(text) if sep else None
+            except json.JSONDecodeError as e:
+                ap.error(f"--variants {v!r}: not JSON ({e})")
+            if not isinstance(over, dict):
+                ap.error(f"--variants {v!r}: expected NAME=JSON object of FusionConfig fields")
+            sdf = over.pop("sdf", {})
+            variants[name] = dataclasses.replace(base, sdf=dataclasses.replace(base.sdf, **sdf), **over)
     ecfg = EvaluationConfig()
     rows = []
     for m in sorted(manifests("contact"), key=lambda m: ingest[m["inputs"]["session"]]["name"]):
@@ -88,7 +107,7 @@ def main() -> None:
             txt = (f"{name}: chamfer {r['chamfer_cm']:.2f} cm, IoU {r['iou']:.2f}, volume {r['vol']:.3f} L, hull "
                    f"{r['hull']:.3f} L (true {r['true']:.3f} L), carved {fu.metrics['carved_voxels']:.0f}, thin "
                    f"{fu.metrics['thin_unsupported_voxels']:.0f} voxels [{cpu:.0f} s CPU]")
-            if a.dynamics and (a.trunc_back or name in ("off", "carve")):
+            if a.dynamics and (a.trunc_back or a.variants or name in ("off", "carve")):
                 ev = evaluation.run(EvaluationInputs(session=session, t=tr.t, X_WO=tr.X_WO, tracked=tr.tracked,
                                                      meshes={"fused": fu.mesh},
                                                      models={"fused": assemble_model(session, co, fu.mesh)}), ecfg)

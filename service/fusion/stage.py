@@ -34,6 +34,7 @@ from service.mesh import Mesh
 from service.sdf import extract_mesh, fit_sdf, hull_sdf, make_grid_geometry, rays_from_frame, sdf_query
 from service.sdf.grid import grid_points
 from service.sdf.types import RaySet, SdfGrid
+from service.tracking.geometry import depth_continuous
 from service.transforms import X_inv
 
 Progress = Callable[[float, str], None] | None
@@ -44,6 +45,20 @@ def _sdf_extended(grid: SdfGrid, P: np.ndarray) -> np.ndarray:
     b = grid.bounds_O
     out = np.linalg.norm(np.maximum(b[0] - P, 0) + np.maximum(P - b[1], 0), axis=1)
     return sdf_query(grid, P) + out
+
+
+def depth_jump_free(depth: np.ndarray, u: np.ndarray, v: np.ndarray, jump: float) -> np.ndarray:
+    """(N,) bool: pixels (u,v) (N,) of depth (H,W) m with a reading none of whose four neighbours (clamped at the
+    border) has a reading differing by more than ``jump`` + 2 % of its depth. As ``depth_continuous`` of the
+    tracking, but a neighbour without a reading is no evidence of a discontinuity."""
+    H, W = depth.shape
+    d0 = depth[v, u]
+    tol = jump + 0.02 * d0
+    ok = d0 > 0
+    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        nb = depth[np.clip(v + dv, 0, H - 1), np.clip(u + du, 0, W - 1)]
+        ok &= (nb <= 0) | (np.abs(nb - d0) < tol)
+    return ok
 
 
 def select_frames(tracked: np.ndarray, max_frames: int) -> np.ndarray:
@@ -76,6 +91,9 @@ def session_rays(
         P_C = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], 1)
         P_W = P_C @ session.X_WC[:3, :3].T + session.X_WC[:3, 3]
         ok = P_W[:, 2] > session.table_height + cfg.table_clearance
+        if cfg.drop_flying:  # depth blended across a discontinuity, or a reading at an occluding contour
+            ok &= depth_continuous(depth, u, v, cfg.edge_jump) if cfg.flying_holes else \
+                depth_jump_free(depth, u, v, cfg.edge_jump)
         resid = np.nan
         if visible_sdf is not None and len(P_C):
             P_O = P_C @ X_OC[:3, :3].T + X_OC[:3, 3]

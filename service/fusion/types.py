@@ -104,6 +104,12 @@ class FusionConfig:
     max_free_rays_per_frame: int = 800
     table_clearance: float = 0.005  # object pixels must back-project this far above the table, m
     denoise: float = 0.02  # ... and within this of the visible SDF's zero level set, m
+    # ... and, with drop_flying, not at a depth jump: every 4-neighbour has a reading within edge_jump + 2 % of its
+    # depth (service.tracking.geometry.depth_continuous, the tracking points' flying-pixel test). Off: it removes the
+    # lumps of a box's fused surface (strike sessions) but shrinks round bodies (seed-11 store; docs/fusion.md)
+    drop_flying: bool = False
+    edge_jump: float = 0.01  # m
+    flying_holes: bool = True  # a neighbour without a reading counts as a jump (as in the tracking's test)
     pad: float = 0.02  # m around visible ∪ physible points
     max_physible_distance: float = 0.15  # physible points farther than this from the visible box are dropped, m
     anchor_samples: int = 25_000  # surface samples of the physible mesh tested as hyperplane anchors
@@ -146,7 +152,7 @@ class FusionConfig:
         if self.table_points not in ("footprint", "planes", "hull", "points"):
             raise ValueError("FusionConfig.table_points must be 'footprint', 'planes', 'hull' or 'points', "
                              f"got {self.table_points!r}")
-        for name in ("carve_margin", "carve_radius_px", "thin_open_radius", "thin_support"):
+        for name in ("carve_margin", "carve_radius_px", "thin_open_radius", "thin_support", "edge_jump"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"FusionConfig.{name} must be >= 0, got {getattr(self, name)!r}")
         if not 0 <= self.carve_min_frac <= 1:

@@ -134,6 +134,39 @@ def test_session_rays_filter_table_and_outliers(scene):
     assert np.all(surf_O[:, 2] + HALF[2] > 0.03 + CFG.table_clearance - 1e-3)
 
 
+def test_depth_jump_tests_drop_blends_and_contours():
+    """A flying pixel between a near plate and the far background fails both tests; its neighbours at the contour
+    fail them too; a pixel next to a missing reading fails only the tracking's test (holes count as jumps)."""
+    from service.fusion.stage import depth_jump_free
+    from service.tracking.geometry import depth_continuous
+
+    D = np.full((9, 9), 1.0)
+    D[:, :4] = 0.5  # near plate on the left, background at 1 m
+    D[4, 4] = 0.75  # blend at the step
+    D[1, 1] = 0.0  # a hole inside the plate
+    v, u = np.indices(D.shape).reshape(2, -1)
+    for test in (depth_jump_free, depth_continuous):
+        ok = test(D, u, v, 0.01).reshape(D.shape)
+        assert not ok[4, 4] and not ok[4, 3] and not ok[2, 3]  # the blend, the contour of the plate
+        assert ok[6, 1] and ok[6, 7]  # inside the plate, inside the background
+    assert depth_jump_free(D, u, v, 0.01).reshape(D.shape)[1, 2]
+    assert not depth_continuous(D, u, v, 0.01).reshape(D.shape)[1, 2]
+
+
+def test_session_rays_drop_flying_pixels(scene):
+    inputs, _, _ = scene
+    s, X, tr = inputs.session, inputs.X_WO, inputs.tracked
+    n_all = int((session_rays(s, X, tr, CFG).depth > 0).sum())
+    fly = session_rays(s, X, tr, dataclasses.replace(CFG, drop_flying=True))
+    n_fly = int((fly.depth > 0).sum())
+    assert 0 < n_fly < n_all  # the box's contour pixels (a jump to the table behind) go
+    kept = fly.surface_points_O
+    allp = session_rays(s, X, tr, CFG).surface_points_O
+    dropped = allp[np.min(np.linalg.norm(allp[:, None] - kept[None], axis=2), axis=1) > 1e-9]
+    edge = lambda P: np.sort(HALF - np.abs(P), axis=1)[:, 1]  # noqa: E731  distance of a face point to its nearest edge
+    assert len(dropped) and np.median(edge(dropped)) < np.median(edge(kept))  # the silhouette rim goes
+
+
 def test_flat_view_without_contacts_falls_back_to_visible_start():
     """One camera square to the +x face sees a flat patch: no hull exists, the visible grid is the start."""
     from service.fusion import fuse
@@ -257,7 +290,7 @@ def test_seen_through_fin_is_carved_and_unsupported_thin_part_removed(scene):
 
 @pytest.mark.parametrize("field, value", [("carve_margin", -0.01), ("carve_radius_px", -1), ("carve_min_frac", 1.5),
                                           ("carve_min_frames", 0), ("thin_open_radius", -0.005),
-                                          ("thin_support", float("nan"))])
+                                          ("thin_support", float("nan")), ("edge_jump", -0.01)])
 def test_config_refuses_bad_removal_settings(field, value):
     with pytest.raises(ValueError, match=f"FusionConfig.{field}"):
         FusionConfig(**{field: value})
