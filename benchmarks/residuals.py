@@ -13,6 +13,10 @@ inertia m s²/6), table at z = 0, no robot. Tosses are split into training and h
     python benchmarks/residuals.py lab [--seeds 601 602] [--cases none clock_offset ...] [--exact-model]
     python benchmarks/residuals.py strike [--seeds 601 602] [--cases none friction tilt ...]
 
+Every subcommand takes ``--unit-statistic mean`` to judge with the earlier held-out test over units (percentile
+bootstrap of the mean per-unit difference in metres) instead of the current one (Student-t bound on the mean
+of per-unit relative improvements; docs/residuals.md §4, rule 2).
+
 Lab: synthetic-lab pushing sessions (the lab's own physics and robot controller, not rendered) with one
 hidden effect each, and a model carrying learned-model errors that the nuisance refit must absorb.
 
