@@ -71,7 +71,7 @@ def select_frames(tracked: np.ndarray, max_frames: int) -> np.ndarray:
 
 def session_rays(
     session, X_WO: np.ndarray, tracked: np.ndarray, cfg: FusionConfig, visible_sdf: SdfGrid | None = None,
-    frames_out: list | None = None,
+    frames_out: list | None = None, flying_out: list | None = None,
 ) -> RaySet:
     """Depth rays in O of up to ``cfg.max_frames`` tracked frames (subsampled pixels).
 
@@ -79,7 +79,8 @@ def session_rays(
     (by ``cfg.table_clearance``) and, given the visible SDF, within ``cfg.denoise`` of its zero level set
     (BundleSDF drops rays > 2 cm from its point cloud). ``frames_out``, when given, receives
     ``(depth (H,W), X_OC (4,4), frame index, median |S_visible| of its object points (m, nan without the
-    visible SDF))`` of every frame read (free-space test and pose check of the physible filters)."""
+    visible SDF))`` of every frame read (free-space test and pose check of the physible filters). ``flying_out``, when
+    given, receives the (K,3) points in O of the object pixels only the flying-pixel test removed (``drop_flying``)."""
     rng = np.random.default_rng(cfg.seed)
     K = np.asarray(session.K, float)
     parts = []
@@ -91,8 +92,9 @@ def session_rays(
         P_C = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], 1)
         P_W = P_C @ session.X_WC[:3, :3].T + session.X_WC[:3, 3]
         ok = P_W[:, 2] > session.table_height + cfg.table_clearance
+        smooth = np.ones(len(u), bool)
         if cfg.drop_flying:  # depth blended across a discontinuity, or a reading at an occluding contour
-            ok &= depth_continuous(depth, u, v, cfg.edge_jump) if cfg.flying_holes else \
+            smooth = depth_continuous(depth, u, v, cfg.edge_jump) if cfg.flying_holes else \
                 depth_jump_free(depth, u, v, cfg.edge_jump)
         resid = np.nan
         if visible_sdf is not None and len(P_C):
@@ -100,6 +102,10 @@ def session_rays(
             dist = np.abs(_sdf_extended(visible_sdf, P_O))
             resid = float(np.median(dist[ok])) if ok.any() else np.nan
             ok &= dist < cfg.denoise
+        if flying_out is not None and cfg.drop_flying:
+            m = ok & ~smooth
+            flying_out.append(P_C[m] @ X_OC[:3, :3].T + X_OC[:3, 3])
+        ok &= smooth
         if frames_out is not None:
             frames_out.append((depth, X_OC, int(i), resid))
         keep = np.zeros(mask.shape, bool)
@@ -235,13 +241,15 @@ def fuse(
     halfspace_O: np.ndarray | None = None,
     table_mask: np.ndarray | None = None,
     free_space: tuple[list, list, np.ndarray] | None = None,
+    hull_extra_O: np.ndarray | None = None,
 ) -> FusionOutputs:
     """The fusion pass on prepared rays (no session I/O); see the module docstring. ``halfspace_O``: optional
     plane (n, b) in O; where ``n·p + b > 0`` is outside the object (space below the table at frame 0).
     ``table_mask`` (P,) bool: physible points that are table contacts; with ``cfg.table_points == "planes"``
     only their supporting planes are used (hyperplane anchors), not the points themselves.
     ``free_space`` = (depths [(H,W)], X_OC [(4,4)], K (3,3)): frames whose observed empty space is carved out of
-    the fitted grid when ``cfg.carve_free_space`` (``service.fusion.carve.carve_grid``)."""
+    the fitted grid when ``cfg.carve_free_space`` (``service.fusion.carve.carve_grid``). ``hull_extra_O`` (K,3):
+    further points of the hull start (no ray; e.g. the contour readings the flying-pixel test removed)."""
     t0 = time.perf_counter()
     rng = np.random.default_rng(cfg.seed)
     vis = rays.surface_points_O
@@ -291,6 +299,8 @@ def fuse(
         origin, voxel, shape = make_grid_geometry(bounds, cfg.sdf.resolution)
         P_hull = P if cfg.table_points == "hull" else P_on
         pts = np.concatenate([vis, P_hull]) if len(P_hull) else vis
+        if hull_extra_O is not None and len(hull_extra_O):
+            pts = np.concatenate([pts, np.asarray(hull_extra_O, float).reshape(-1, 3)])
         try:
             v0 = hull_sdf(pts, grid_points(origin, voxel, shape).reshape(-1, 3)).reshape(shape).astype(np.float32)
             init = SdfGrid(origin_O=origin, voxel=voxel, values=v0)
@@ -364,7 +374,8 @@ def run(inputs: FusionInputs, cfg: FusionConfig, *, progress: Progress = None) -
         progress(0.0, "fusion: reading depth rays")
     t0 = time.perf_counter()
     frames: list = []
-    rays = session_rays(inputs.session, X_WO, tracked, cfg, inputs.visible_sdf, frames_out=frames)
+    flying: list | None = [] if cfg.flying_in_hull else None
+    rays = session_rays(inputs.session, X_WO, tracked, cfg, inputs.visible_sdf, frames_out=frames, flying_out=flying)
     t_rays = time.perf_counter() - t0
     P = np.asarray(inputs.physible_points_O, float).reshape(-1, 3)
     N = np.asarray(inputs.physible_normals_O, float).reshape(-1, 3)
@@ -410,8 +421,10 @@ def run(inputs: FusionInputs, cfg: FusionConfig, *, progress: Progress = None) -
         halfspace_O=halfspace,
         table_mask=table,
         free_space=carve_frames,
+        hull_extra_O=np.concatenate(flying) if flying else None,
     )
     out.metrics["time_rays_s"] = t_rays
+    out.metrics["flying_hull_points"] = float(sum(len(f) for f in flying) if flying else 0)
     out.metrics["physible_free_dropped"] = float(n_free)
     out.metrics["physible_penetrating_dropped"] = float(n_pen)
     out.metrics["frames_pose_checked"] = float(checked.sum())

@@ -110,6 +110,7 @@ class FusionConfig:
     drop_flying: bool = False
     edge_jump: float = 0.01  # m
     flying_holes: bool = True  # a neighbour without a reading counts as a jump (as in the tracking's test)
+    flying_in_hull: bool = False  # the readings it removes still join the hull start (they give no ray)
     pad: float = 0.02  # m around visible ∪ physible points
     max_physible_distance: float = 0.15  # physible points farther than this from the visible box are dropped, m
     anchor_samples: int = 25_000  # surface samples of the physible mesh tested as hyperplane anchors

@@ -11,7 +11,7 @@ from service.errors import StageFailed
 from service.fusion import FusionConfig, FusionInputs, LossWeights, run, session_rays
 from service.fusion.stage import fusion_bounds, select_frames
 from service.sdf import extract_mesh, fit_sdf, sdf_query
-from tests.fusion.scenes import HALF, box_mesh, chamfer, face_points, hidden_contacts, write_box_session
+from tests.fusion.scenes import HALF, box_mesh, box_sdf, chamfer, face_points, hidden_contacts, write_box_session
 
 CFG = FusionConfig.fast()
 
@@ -165,6 +165,10 @@ def test_session_rays_drop_flying_pixels(scene):
     dropped = allp[np.min(np.linalg.norm(allp[:, None] - kept[None], axis=2), axis=1) > 1e-9]
     edge = lambda P: np.sort(HALF - np.abs(P), axis=1)[:, 1]  # noqa: E731  distance of a face point to its nearest edge
     assert len(dropped) and np.median(edge(dropped)) < np.median(edge(kept))  # the silhouette rim goes
+    out: list = []
+    session_rays(s, X, tr, dataclasses.replace(CFG, drop_flying=True), flying_out=out)
+    rim = np.concatenate(out)  # every removed reading (all pixels, not only the ray grid), for the hull start
+    assert len(rim) > len(dropped) and np.all(np.abs(box_sdf(rim)) < 0.004) and np.median(edge(rim)) < 0.004
 
 
 def test_flat_view_without_contacts_falls_back_to_visible_start():
