@@ -53,13 +53,15 @@ class SpinResult:
     theta: np.ndarray  # (N,) spin correction (rad) applied to each frame: X_WO ← X_WO S(θ)
     votes: np.ndarray  # (N,) inlier votes of each frame's estimate (0: interpolated)
     observable: bool  # enough texture to measure the spin in some frames
+    rejected: bool = False  # the correction exceeded max_deg somewhere and was not applied (θ = 0)
 
 
-def revolution_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float = 0.5
+def revolution_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float = 0.5, k: int = 0
                     ) -> tuple[bool, float, np.ndarray, np.ndarray]:
     """(is_revolution, λ̂, a (3,), c (3,)) of model points Q (M,3) with normals N (M,3) in O (module docstring):
     a body of revolution when λ̂_1 < tau, λ̂_1 ≤ sep · λ̂_2 (one weak direction, not a near-sphere whose weak
-    directions mix) and that direction is mostly rotation."""
+    directions mix) and that direction is mostly rotation. ``k`` = 1: the same test on the second weakest
+    direction (sep then compares it with the third)."""
     if len(Q) < 20:
         return False, 1.0, np.zeros(3), np.zeros(3)
     ctr = Q.mean(0)
@@ -69,14 +71,76 @@ def revolution_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float = 0.5
     Di = np.diag([1 / L, 1 / L, 1 / L, 1.0, 1.0, 1.0])
     lam, U = np.linalg.eigh(Di @ (J.T @ J) @ Di)
     lam = lam / len(Q)
-    u = U[:, 0]
-    if np.sum(u[:3] ** 2) <= 0.5 or lam[0] >= tau or lam[0] > sep * lam[1]:
-        return False, float(lam[0]), np.zeros(3), np.zeros(3)
+    u = U[:, k]
+    if np.sum(u[:3] ** 2) <= 0.5 or lam[k] >= tau or lam[k] > sep * lam[k + 1]:
+        return False, float(lam[k]), np.zeros(3), np.zeros(3)
     xi = Di @ u  # back to (ω, v) in metres: z = D ξ
     w, v = xi[:3], xi[3:]
     a = w / np.linalg.norm(w)
     c = np.cross(w, v) / float(w @ w) + ctr
     return True, float(lam[0]), a, c
+
+
+def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, trunc: float = 0.003
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Axis (a, c) of a body of revolution refitted to the radius profile of its points Q (M,3), starting from
+    (a0, c0): minimise the mean of min(e², trunc²) over the points, e = r − ρ(h) with r, h the radius and height
+    about the axis and ρ the least-squares polynomial of degree ``deg`` in h (Nelder–Mead over two tilts of a and
+    two shifts of c). Uses positions only, so it holds where the normals' eigen-axis mixes two weak rotations
+    (an egg). Returns (a, c, rms of the truncated residual in m)."""
+    from scipy.optimize import minimize
+
+    e1, e2 = _basis(a0)
+
+    def unpack(x):
+        a = a0 + x[0] * e1 + x[1] * e2
+        return a / np.linalg.norm(a), c0 + x[2] * e1 + x[3] * e2
+
+    def cost(x):
+        a, c = unpack(x)
+        d = Q - c
+        h = d @ a
+        r = np.linalg.norm(d - h[:, None] * a, axis=1)
+        V = np.vander(h / (np.std(h) or 1.0), deg + 1)
+        coef, *_ = np.linalg.lstsq(V, r, rcond=None)
+        return float(np.mean(np.minimum((r - V @ coef) ** 2, trunc**2)))
+
+    r = minimize(cost, np.zeros(4), method="Nelder-Mead", options=dict(xatol=1e-5, fatol=1e-12, maxiter=2000))
+    a, c = unpack(r.x)
+    return a, c, float(np.sqrt(r.fun))
+
+
+def _basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors orthogonal to the unit vector a and to each other."""
+    e1 = np.cross(a, [1.0, 0.0, 0.0])
+    if np.linalg.norm(e1) < 0.3:
+        e1 = np.cross(a, [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(a, e1)
+
+
+def find_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float, profile: str = "mixed", max_rms: float = 0.002
+              ) -> tuple[bool, float, np.ndarray, np.ndarray]:
+    """(is_revolution, λ̂, a, c) of the model Q, N (M,3): ``revolution_axis``; with ``profile`` "mixed" a model that
+    fails the separation test (two nearly equal weak rotations: an egg) or whose weakest direction is a slide with
+    a weak rotation next gets its axis refitted to the radius profile (``profile_axis``, from that eigen-axis),
+    kept when the profile fits within ``max_rms`` (m); "always": every axis is refitted so; "off": the eigen-axis
+    alone."""
+    ok, lam, a, c = revolution_axis(Q, N, tau, sep)
+    if ok and profile != "always":
+        return ok, lam, a, c
+    if not ok:
+        if profile == "off":
+            return ok, lam, a, c
+        ok, lam, a, c = revolution_axis(Q, N, tau, 1.0)
+        if not ok:  # the weakest direction a slide (an egg seen from few sides): the next weakest, a rotation
+            ok, lam, a, c = revolution_axis(Q, N, tau, 1.0, k=1)
+        if not ok:
+            return ok, lam, a, c
+    a2, c2, rms = profile_axis(Q, a, c)
+    if rms > max_rms:
+        return False, lam, np.zeros(3), np.zeros(3)
+    return True, lam, a2, c2
 
 
 def spin_matrix(a: np.ndarray, c: np.ndarray, theta: float) -> np.ndarray:
@@ -131,11 +195,7 @@ def spin_votes(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray,
     """Spin votes θ (K,) (rad, wrapped to (−π, π]) of matched points p (in frame i, W) and q (in anchor j, W):
     θ with S(θ) q_O = p_O, kept where radius and height about the axis agree within ``tol`` (m) and the radius is
     at least ``tol`` (points on the axis carry no azimuth)."""
-    e1 = np.cross(a, [1.0, 0.0, 0.0])
-    if np.linalg.norm(e1) < 0.3:
-        e1 = np.cross(a, [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(a, e1)
+    e1, e2 = _basis(a)
     Xi, Xj = X_inv(X_i), X_inv(X_j)
     pO = pW @ Xi[:3, :3].T + Xi[:3, 3]
     qO = qW @ Xj[:3, :3].T + Xj[:3, 3]
@@ -160,17 +220,31 @@ def vote_mode(theta: np.ndarray, half_width: float) -> tuple[float, int]:
 
 def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, Q: np.ndarray, N: np.ndarray,
                  *, tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
-                 n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0) -> SpinResult:
+                 n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0, reject_deg: float = 0.0,
+                 profile: str = "off", method: str = "chain", w_smooth: float = 0.5, min_pair_votes: int = 0,
+                 max_deg: float = 0.0) -> SpinResult:
     """Spin correction θ (N,) of the poses X_WO (N,4,4) of a body of revolution (module docstring) from each
     frame's interior features ``feats[i] = (points (F,3) in W, descriptors (F,32) or None)``
     (``interior_features``); X_WO is not changed (apply with ``apply_spin``). Q (M,3), N (M,3): the final model
     in O. ``match(desc_a, desc_b) -> (M,2)`` pairs descriptors (the tracker's ratio-test matcher)."""
     n = len(X_WO)
-    is_rev, lam, a, c = revolution_axis(Q, N, tau, sep)
+    is_rev, lam, a, c = find_axis(Q, N, tau, sep, profile)
     theta = np.zeros(n)
     votes = np.zeros(n, int)
     if not is_rev:
         return SpinResult(False, lam, a, c, theta, votes, False)
+    if method == "graph":
+        theta, votes = spin_graph(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, match=match,
+                                  max_jump_deg=max_jump_deg, w_smooth=w_smooth)
+        observable = bool(np.any(votes > 0))
+        if not observable:
+            theta[:] = 0.0
+        elif smooth > 1:
+            from scipy.ndimage import median_filter
+
+            theta = median_filter(theta, size=smooth, mode="nearest")
+        theta[0] = 0.0
+        return SpinResult(True, lam, a, c, theta, votes, observable)
     Xc = X_WO.copy()  # corrected poses of the anchors
     anchors = [0]
     half = np.radians(inlier_deg)
@@ -192,6 +266,8 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
             th = spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], Xc[j], a, c, tol)
             th = theta[prev] + np.angle(np.exp(1j * (th - theta[prev])))
             th = th[np.abs(th - theta[prev]) <= win]
+            if min_pair_votes > 0 and vote_mode(th, half)[1] < min_pair_votes:
+                continue  # a few coincident votes of one anchor (far views during a fast topple) are not a measurement
             th_all.append(th)
         t, cnt = vote_mode(np.concatenate(th_all) if th_all else np.zeros(0), half)
         if cnt >= min_votes:
@@ -199,9 +275,11 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
             votes[i] = cnt
             Xc[i] = X_WO[i] @ spin_matrix(a, c, theta[i])
             anchors.append(i)
+    observable = int(np.sum(votes > 0)) > 0
+    if reject_deg > 0:
+        votes[reject_isolated(theta, votes, np.radians(reject_deg))] = 0
     ok = votes > 0
     ok[0] = True
-    observable = int(np.sum(votes > 0)) > 0
     idx = np.nonzero(ok)[0]
     full = np.interp(np.arange(n), idx, theta[idx])
     if smooth > 1:
@@ -209,7 +287,94 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
 
         full = median_filter(full, size=smooth, mode="nearest")
     full[0] = 0.0
+    if max_deg > 0 and np.max(np.abs(full)) > np.radians(max_deg):
+        # a correction this large means the votes followed something other than the surface (a lost track, whose
+        # poses are off by centimetres: development bottle 561 went from 37° to 172° median): not applied
+        return SpinResult(True, lam, a, c, np.zeros(n), votes, observable, rejected=True)
     return SpinResult(True, lam, a, c, full, votes, observable)
+
+
+def spin_graph(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, a: np.ndarray, c: np.ndarray,
+               *, tol: float, inlier_deg: float, min_votes: int, match, max_jump_deg: float = 15.0,
+               offsets: tuple[int, ...] = (1, 2, 3, 5, 8, 12, 20, 30, 50, 80, 130, 200), huber_deg: float = 2.0,
+               w_smooth: float = 0.5, iters: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Spin corrections θ (N,) (rad) and per-frame vote counts (N,) by a one-parameter pose graph: for frame pairs
+    (i, j = i − k, k in ``offsets``, and j = 0) the matched interior keypoints vote for the relative spin
+    θ_i − θ_j (``spin_votes`` with the uncorrected poses; mode as in ``vote_mode``, kept with at least ``min_votes``
+    votes and within ``max_jump_deg`` · (1 + k/5) of zero); then minimise
+    Σ w_ij ρ(θ_i − θ_j − m_ij) + w_smooth Σ (θ_i − θ_{i−1})² with θ_0 = 0, w_ij the votes and ρ Huber at
+    ``huber_deg`` (IRLS). Every frame's spin rests on many overlapping pairs instead of a chain of single steps,
+    whose ±3° per-step noise during a fast topple adds up; the weak smoothness term carries the correction across
+    frames without any pair (fast motion, few interior keypoints: held and interpolated, never locked)."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.linalg import spsolve
+
+    n = len(X_WO)
+    half = np.radians(inlier_deg)
+    E = []  # (i, j, m, w)
+    for i in range(1, n):
+        kp, des = feats[i]
+        if des is None or len(kp) < min_votes:
+            continue
+        for j in sorted({0} | {i - k for k in offsets if i - k >= 0}):
+            kq, dq = feats[j]
+            if dq is None or len(kq) < min_votes:
+                continue
+            m = match(des, dq)
+            if len(m) < min_votes:
+                continue
+            th = spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], X_WO[j], a, c, tol)
+            th = th[np.abs(th) <= np.radians(max_jump_deg) * (1 + (i - j) / 5)]
+            t, cnt = vote_mode(th, half)
+            if cnt >= min_votes:
+                E.append((i, j, t, float(cnt)))
+    votes = np.zeros(n, int)
+    theta = np.zeros(n)
+    if not E:
+        return theta, votes
+    E = np.array(E)
+    ei, ej, em, ew = E[:, 0].astype(int), E[:, 1].astype(int), E[:, 2], E[:, 3]
+    np.add.at(votes, ei, ew.astype(int))
+    np.add.at(votes, ej, ew.astype(int))
+    # unknowns θ_1..θ_{n-1}; rows: edges and smoothness
+    si = np.arange(1, n)
+    rows_i = np.concatenate([ei, si])
+    rows_j = np.concatenate([ej, si - 1])
+    meas = np.concatenate([em, np.zeros(n - 1)])
+    w0 = np.concatenate([ew, np.full(n - 1, w_smooth)])
+    nE = len(E)
+    hub = np.radians(huber_deg)
+    w = w0.copy()
+    for _ in range(iters):
+        r_idx = np.arange(len(rows_i))
+        A = coo_matrix((np.concatenate([np.ones(len(r_idx)), -np.ones(len(r_idx))]),
+                        (np.concatenate([r_idx, r_idx]), np.concatenate([rows_i, rows_j]))), shape=(len(r_idx), n)).tocsr()
+        A = A[:, 1:]  # θ_0 = 0
+        W = coo_matrix((w, (r_idx, r_idx))).tocsr()
+        theta[1:] = spsolve((A.T @ W @ A).tocsc(), A.T @ (w * meas))
+        res = np.abs(theta[rows_i] - theta[rows_j] - meas)
+        w = w0.copy()
+        w[:nE] *= np.where(res[:nE] > hub, hub / np.maximum(res[:nE], 1e-12), 1.0)
+    return theta, votes
+
+
+def reject_isolated(theta: np.ndarray, votes: np.ndarray, thr: float) -> np.ndarray:
+    """Indices of estimated frames (votes > 0; frame 0 fixed at θ = 0 counts as estimated) whose θ (N,) differs by
+    more than ``thr`` (rad, plus ``thr``/4 per frame of distance) from both the previous and the next estimated
+    frame: an isolated wrong vote mode; the frame is then interpolated from its neighbours. The first and last
+    estimates are compared with their one neighbour."""
+    idx = np.nonzero(votes > 0)[0]
+    idx = np.concatenate([[0], idx[idx > 0]])
+    bad = []
+    for k in range(1, len(idx)):
+        i = idx[k]
+        d = []
+        for j in (idx[k - 1], idx[k + 1] if k + 1 < len(idx) else None):
+            if j is not None:
+                d.append(abs(theta[i] - theta[j]) > thr * (1 + abs(i - j) / 4))
+        if all(d):
+            bad.append(i)
+    return np.asarray(bad, int)
 
 
 def apply_spin(X_WO: np.ndarray, res: SpinResult) -> np.ndarray:

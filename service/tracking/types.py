@@ -160,6 +160,10 @@ class TrackingConfig:
     sdf_carve_init: bool = True
     sdf_carve_value: float = 0.005  # S (m) given to those voxels
     sdf_drop_flying: bool = False  # no object rays at depth jumps inside the mask (flying pixels; edge_jump test)
+    # spin closure: axis of a model whose weak rotations mix (an egg) refitted to its radius profile ("mixed"),
+    # every axis so ("always") or none ("off"); a correction above spin_max_deg in any frame is not applied (0: no cap)
+    spin_profile: str = "mixed"
+    spin_max_deg: float = 120.0
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -178,6 +182,10 @@ class TrackingConfig:
         for name in ("kf_still_speed", "kf_still_tilt_deg"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
+        if self.spin_profile not in ("off", "mixed", "always"):
+            raise ValueError(f"TrackingConfig.spin_profile must be 'off', 'mixed' or 'always', not {self.spin_profile!r}")
+        if not self.spin_max_deg >= 0:
+            raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
 
