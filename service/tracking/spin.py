@@ -10,9 +10,11 @@ Axis. The weak direction of the point-to-plane normal matrix of the final model,
 axis, so the screw ξ = (ω, v) with ω = a (unit axis) and v = c × a (c on the axis) gives n·(ω × p + v) = 0 for
 every point. The shape counts as a body of revolution when the smallest normalised eigenvalue λ̂_1 (unit-consistent
 scaling, ≈ 1/3 for a direction every point fixes) is below ``spin_tau``, at most ``spin_sep`` times the next one
-(a squat egg's noisy model has two nearly equal weak rotations, 0.021 and 0.029, whose eigenvectors mix: its
-estimated axis was 20° off) and its eigenvector is mostly rotation; then a = ω/|ω|, c = ω × v / |ω|². Boxes,
-prisms and planes (weak directions, if any, are slides) are left alone.
+and its eigenvector is mostly rotation; then a = ω/|ω|, c = ω × v / |ω|². Boxes, prisms and planes (weak
+directions, if any, are slides) are left alone. An egg's noisy model has two nearly equal weak rotations (λ̂ 0.020
+and 0.028 on the development egg 512) whose eigenvectors mix (23° off its axis), or a slide weakest and the axis
+next: then (``find_axis``, profile "mixed") the axis is refitted to the radius profile of the model points
+(``profile_axis``: r − ρ(h) minimal for a polynomial profile ρ, positions only; 512: 23° → 5°).
 
 Spin per frame (a one-parameter loop closure). With S(θ) the rotation by θ about (a, c) in O, the corrected pose
 is X_WO(i) S(θ_i). ORB keypoints are taken only ``spin_border_px`` inside the object mask (away from the
@@ -21,17 +23,17 @@ of an anchor frame j (already corrected) gives, in O, p_O = X_WO(i)⁻¹ p_W and
 radius about the axis and height along it agree (within ``spin_tol``), θ = φ(p_O) − φ(q_O) (azimuths about a).
 θ_i is the mode of these votes (the largest set within ±``spin_inlier_deg``, then its median), accepted with at
 least ``spin_min_votes`` votes. Only votes within ``max_jump_deg`` (15°, widened after frames without an estimate)
-of the previous frame's θ count: the synthetic lab's box-projected texture repeats, mirrored, every 90° around a
-body of revolution, and ORB (rotation-invariant) matches the mirrored corners — without the window a frame of the
-development bottle 521 took an 88° flip. Anchors: frame 0 (θ = 0 by definition) and every frame accepted so far; frame i is
-matched against frame 0, the latest anchors and a few older ones spread over the session, so that a frame that
+of the previous frame's θ count (a print that repeats around the body would otherwise let a frame flip to a copy;
+the synthetic lab's texture did, every 90°, until each side direction got its own print). Anchors: frame 0 (θ = 0
+by definition) and every frame accepted so far; frame i is matched against frame 0, the latest anchors and a few older ones spread over the session, so that a frame that
 sees surface visible before is tied to it directly, and a frame that sees new surface is tied through its
 neighbours. Frames without an accepted θ take it interpolated from the accepted ones (held at the ends); θ is
 then median-filtered over ``spin_smooth`` frames. Only the rotation about the axis changes: the other five
 degrees of freedom, which the geometry fixes, are kept.
 
 Textureless bodies: too few votes anywhere, θ = 0 everywhere (``SpinResult.observable`` False): the spin is
-reported as unobservable and the poses are unchanged.
+reported as unobservable and the poses are unchanged. A correction above ``max_deg`` in any frame is not applied
+(``SpinResult.rejected``): the votes then followed something other than the surface (a lost track).
 """
 
 from __future__ import annotations
@@ -220,8 +222,7 @@ def vote_mode(theta: np.ndarray, half_width: float) -> tuple[float, int]:
 
 def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, Q: np.ndarray, N: np.ndarray,
                  *, tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
-                 n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0, reject_deg: float = 0.0,
-                 profile: str = "off", method: str = "chain", w_smooth: float = 0.5, min_pair_votes: int = 0,
+                 n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0, profile: str = "off",
                  max_deg: float = 0.0) -> SpinResult:
     """Spin correction θ (N,) of the poses X_WO (N,4,4) of a body of revolution (module docstring) from each
     frame's interior features ``feats[i] = (points (F,3) in W, descriptors (F,32) or None)``
@@ -233,18 +234,6 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     votes = np.zeros(n, int)
     if not is_rev:
         return SpinResult(False, lam, a, c, theta, votes, False)
-    if method == "graph":
-        theta, votes = spin_graph(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, match=match,
-                                  max_jump_deg=max_jump_deg, w_smooth=w_smooth)
-        observable = bool(np.any(votes > 0))
-        if not observable:
-            theta[:] = 0.0
-        elif smooth > 1:
-            from scipy.ndimage import median_filter
-
-            theta = median_filter(theta, size=smooth, mode="nearest")
-        theta[0] = 0.0
-        return SpinResult(True, lam, a, c, theta, votes, observable)
     Xc = X_WO.copy()  # corrected poses of the anchors
     anchors = [0]
     half = np.radians(inlier_deg)
@@ -266,8 +255,6 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
             th = spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], Xc[j], a, c, tol)
             th = theta[prev] + np.angle(np.exp(1j * (th - theta[prev])))
             th = th[np.abs(th - theta[prev]) <= win]
-            if min_pair_votes > 0 and vote_mode(th, half)[1] < min_pair_votes:
-                continue  # a few coincident votes of one anchor (far views during a fast topple) are not a measurement
             th_all.append(th)
         t, cnt = vote_mode(np.concatenate(th_all) if th_all else np.zeros(0), half)
         if cnt >= min_votes:
@@ -275,11 +262,9 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
             votes[i] = cnt
             Xc[i] = X_WO[i] @ spin_matrix(a, c, theta[i])
             anchors.append(i)
-    observable = int(np.sum(votes > 0)) > 0
-    if reject_deg > 0:
-        votes[reject_isolated(theta, votes, np.radians(reject_deg))] = 0
     ok = votes > 0
     ok[0] = True
+    observable = int(np.sum(votes > 0)) > 0
     idx = np.nonzero(ok)[0]
     full = np.interp(np.arange(n), idx, theta[idx])
     if smooth > 1:
@@ -292,89 +277,6 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
         # poses are off by centimetres: development bottle 561 went from 37° to 172° median): not applied
         return SpinResult(True, lam, a, c, np.zeros(n), votes, observable, rejected=True)
     return SpinResult(True, lam, a, c, full, votes, observable)
-
-
-def spin_graph(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, a: np.ndarray, c: np.ndarray,
-               *, tol: float, inlier_deg: float, min_votes: int, match, max_jump_deg: float = 15.0,
-               offsets: tuple[int, ...] = (1, 2, 3, 5, 8, 12, 20, 30, 50, 80, 130, 200), huber_deg: float = 2.0,
-               w_smooth: float = 0.5, iters: int = 10) -> tuple[np.ndarray, np.ndarray]:
-    """Spin corrections θ (N,) (rad) and per-frame vote counts (N,) by a one-parameter pose graph: for frame pairs
-    (i, j = i − k, k in ``offsets``, and j = 0) the matched interior keypoints vote for the relative spin
-    θ_i − θ_j (``spin_votes`` with the uncorrected poses; mode as in ``vote_mode``, kept with at least ``min_votes``
-    votes and within ``max_jump_deg`` · (1 + k/5) of zero); then minimise
-    Σ w_ij ρ(θ_i − θ_j − m_ij) + w_smooth Σ (θ_i − θ_{i−1})² with θ_0 = 0, w_ij the votes and ρ Huber at
-    ``huber_deg`` (IRLS). Every frame's spin rests on many overlapping pairs instead of a chain of single steps,
-    whose ±3° per-step noise during a fast topple adds up; the weak smoothness term carries the correction across
-    frames without any pair (fast motion, few interior keypoints: held and interpolated, never locked)."""
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.linalg import spsolve
-
-    n = len(X_WO)
-    half = np.radians(inlier_deg)
-    E = []  # (i, j, m, w)
-    for i in range(1, n):
-        kp, des = feats[i]
-        if des is None or len(kp) < min_votes:
-            continue
-        for j in sorted({0} | {i - k for k in offsets if i - k >= 0}):
-            kq, dq = feats[j]
-            if dq is None or len(kq) < min_votes:
-                continue
-            m = match(des, dq)
-            if len(m) < min_votes:
-                continue
-            th = spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], X_WO[j], a, c, tol)
-            th = th[np.abs(th) <= np.radians(max_jump_deg) * (1 + (i - j) / 5)]
-            t, cnt = vote_mode(th, half)
-            if cnt >= min_votes:
-                E.append((i, j, t, float(cnt)))
-    votes = np.zeros(n, int)
-    theta = np.zeros(n)
-    if not E:
-        return theta, votes
-    E = np.array(E)
-    ei, ej, em, ew = E[:, 0].astype(int), E[:, 1].astype(int), E[:, 2], E[:, 3]
-    np.add.at(votes, ei, ew.astype(int))
-    np.add.at(votes, ej, ew.astype(int))
-    # unknowns θ_1..θ_{n-1}; rows: edges and smoothness
-    si = np.arange(1, n)
-    rows_i = np.concatenate([ei, si])
-    rows_j = np.concatenate([ej, si - 1])
-    meas = np.concatenate([em, np.zeros(n - 1)])
-    w0 = np.concatenate([ew, np.full(n - 1, w_smooth)])
-    nE = len(E)
-    hub = np.radians(huber_deg)
-    w = w0.copy()
-    for _ in range(iters):
-        r_idx = np.arange(len(rows_i))
-        A = coo_matrix((np.concatenate([np.ones(len(r_idx)), -np.ones(len(r_idx))]),
-                        (np.concatenate([r_idx, r_idx]), np.concatenate([rows_i, rows_j]))), shape=(len(r_idx), n)).tocsr()
-        A = A[:, 1:]  # θ_0 = 0
-        W = coo_matrix((w, (r_idx, r_idx))).tocsr()
-        theta[1:] = spsolve((A.T @ W @ A).tocsc(), A.T @ (w * meas))
-        res = np.abs(theta[rows_i] - theta[rows_j] - meas)
-        w = w0.copy()
-        w[:nE] *= np.where(res[:nE] > hub, hub / np.maximum(res[:nE], 1e-12), 1.0)
-    return theta, votes
-
-
-def reject_isolated(theta: np.ndarray, votes: np.ndarray, thr: float) -> np.ndarray:
-    """Indices of estimated frames (votes > 0; frame 0 fixed at θ = 0 counts as estimated) whose θ (N,) differs by
-    more than ``thr`` (rad, plus ``thr``/4 per frame of distance) from both the previous and the next estimated
-    frame: an isolated wrong vote mode; the frame is then interpolated from its neighbours. The first and last
-    estimates are compared with their one neighbour."""
-    idx = np.nonzero(votes > 0)[0]
-    idx = np.concatenate([[0], idx[idx > 0]])
-    bad = []
-    for k in range(1, len(idx)):
-        i = idx[k]
-        d = []
-        for j in (idx[k - 1], idx[k + 1] if k + 1 < len(idx) else None):
-            if j is not None:
-                d.append(abs(theta[i] - theta[j]) > thr * (1 + abs(i - j) / 4))
-        if all(d):
-            bad.append(i)
-    return np.asarray(bad, int)
 
 
 def apply_spin(X_WO: np.ndarray, res: SpinResult) -> np.ndarray:
