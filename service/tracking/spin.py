@@ -80,7 +80,7 @@ def revolution_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float = 0.5, 
     w, v = xi[:3], xi[3:]
     a = w / np.linalg.norm(w)
     c = np.cross(w, v) / float(w @ w) + ctr
-    return True, float(lam[0]), a, c
+    return True, float(lam[k]), a, c
 
 
 def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, trunc: float = 0.003
