@@ -10,9 +10,11 @@ Axis. The weak direction of the point-to-plane normal matrix of the final model,
 axis, so the screw ξ = (ω, v) with ω = a (unit axis) and v = c × a (c on the axis) gives n·(ω × p + v) = 0 for
 every point. The shape counts as a body of revolution when the smallest normalised eigenvalue λ̂_1 (unit-consistent
 scaling, ≈ 1/3 for a direction every point fixes) is below ``spin_tau``, at most ``spin_sep`` times the next one
-(a squat egg's noisy model has two nearly equal weak rotations, 0.021 and 0.029, whose eigenvectors mix: its
-estimated axis was 20° off) and its eigenvector is mostly rotation; then a = ω/|ω|, c = ω × v / |ω|². Boxes,
-prisms and planes (weak directions, if any, are slides) are left alone.
+and its eigenvector is mostly rotation; then a = ω/|ω|, c = ω × v / |ω|². Boxes, prisms and planes (weak
+directions, if any, are slides) are left alone. An egg's noisy model has two nearly equal weak rotations (λ̂ 0.020
+and 0.028 on the development egg 512) whose eigenvectors mix (23° off its axis), or a slide weakest and the axis
+next: then (``find_axis``, profile "mixed") the axis is refitted to the radius profile of the model points
+(``profile_axis``: r − ρ(h) minimal for a polynomial profile ρ, positions only; 512: 23° → 5°).
 
 Spin per frame (a one-parameter loop closure). With S(θ) the rotation by θ about (a, c) in O, the corrected pose
 is X_WO(i) S(θ_i). ORB keypoints are taken only ``spin_border_px`` inside the object mask (away from the
@@ -21,17 +23,17 @@ of an anchor frame j (already corrected) gives, in O, p_O = X_WO(i)⁻¹ p_W and
 radius about the axis and height along it agree (within ``spin_tol``), θ = φ(p_O) − φ(q_O) (azimuths about a).
 θ_i is the mode of these votes (the largest set within ±``spin_inlier_deg``, then its median), accepted with at
 least ``spin_min_votes`` votes. Only votes within ``max_jump_deg`` (15°, widened after frames without an estimate)
-of the previous frame's θ count: the synthetic lab's box-projected texture repeats, mirrored, every 90° around a
-body of revolution, and ORB (rotation-invariant) matches the mirrored corners — without the window a frame of the
-development bottle 521 took an 88° flip. Anchors: frame 0 (θ = 0 by definition) and every frame accepted so far; frame i is
-matched against frame 0, the latest anchors and a few older ones spread over the session, so that a frame that
+of the previous frame's θ count (a print that repeats around the body would otherwise let a frame flip to a copy;
+the synthetic lab's texture did, every 90°, until each side direction got its own print). Anchors: frame 0 (θ = 0
+by definition) and every frame accepted so far; frame i is matched against frame 0, the latest anchors and a few older ones spread over the session, so that a frame that
 sees surface visible before is tied to it directly, and a frame that sees new surface is tied through its
 neighbours. Frames without an accepted θ take it interpolated from the accepted ones (held at the ends); θ is
 then median-filtered over ``spin_smooth`` frames. Only the rotation about the axis changes: the other five
 degrees of freedom, which the geometry fixes, are kept.
 
 Textureless bodies: too few votes anywhere, θ = 0 everywhere (``SpinResult.observable`` False): the spin is
-reported as unobservable and the poses are unchanged.
+reported as unobservable and the poses are unchanged. A correction above ``max_deg`` in any frame is not applied
+(``SpinResult.rejected``): the votes then followed something other than the surface (a lost track).
 """
 
 from __future__ import annotations
@@ -53,13 +55,15 @@ class SpinResult:
     theta: np.ndarray  # (N,) spin correction (rad) applied to each frame: X_WO ← X_WO S(θ)
     votes: np.ndarray  # (N,) inlier votes of each frame's estimate (0: interpolated)
     observable: bool  # enough texture to measure the spin in some frames
+    rejected: bool = False  # the correction exceeded max_deg somewhere and was not applied (θ = 0)
 
 
-def revolution_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float = 0.5
+def revolution_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float = 0.5, k: int = 0
                     ) -> tuple[bool, float, np.ndarray, np.ndarray]:
     """(is_revolution, λ̂, a (3,), c (3,)) of model points Q (M,3) with normals N (M,3) in O (module docstring):
     a body of revolution when λ̂_1 < tau, λ̂_1 ≤ sep · λ̂_2 (one weak direction, not a near-sphere whose weak
-    directions mix) and that direction is mostly rotation."""
+    directions mix) and that direction is mostly rotation. ``k`` = 1: the same test on the second weakest
+    direction (sep then compares it with the third)."""
     if len(Q) < 20:
         return False, 1.0, np.zeros(3), np.zeros(3)
     ctr = Q.mean(0)
@@ -69,14 +73,76 @@ def revolution_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float = 0.5
     Di = np.diag([1 / L, 1 / L, 1 / L, 1.0, 1.0, 1.0])
     lam, U = np.linalg.eigh(Di @ (J.T @ J) @ Di)
     lam = lam / len(Q)
-    u = U[:, 0]
-    if np.sum(u[:3] ** 2) <= 0.5 or lam[0] >= tau or lam[0] > sep * lam[1]:
-        return False, float(lam[0]), np.zeros(3), np.zeros(3)
+    u = U[:, k]
+    if np.sum(u[:3] ** 2) <= 0.5 or lam[k] >= tau or lam[k] > sep * lam[k + 1]:
+        return False, float(lam[k]), np.zeros(3), np.zeros(3)
     xi = Di @ u  # back to (ω, v) in metres: z = D ξ
     w, v = xi[:3], xi[3:]
     a = w / np.linalg.norm(w)
     c = np.cross(w, v) / float(w @ w) + ctr
-    return True, float(lam[0]), a, c
+    return True, float(lam[k]), a, c
+
+
+def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, trunc: float = 0.003
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Axis (a, c) of a body of revolution refitted to the radius profile of its points Q (M,3), starting from
+    (a0, c0): minimise the mean of min(e², trunc²) over the points, e = r − ρ(h) with r, h the radius and height
+    about the axis and ρ the least-squares polynomial of degree ``deg`` in h (Nelder–Mead over two tilts of a and
+    two shifts of c). Uses positions only, so it holds where the normals' eigen-axis mixes two weak rotations
+    (an egg). Returns (a, c, rms of the truncated residual in m)."""
+    from scipy.optimize import minimize
+
+    e1, e2 = _basis(a0)
+
+    def unpack(x):
+        a = a0 + x[0] * e1 + x[1] * e2
+        return a / np.linalg.norm(a), c0 + x[2] * e1 + x[3] * e2
+
+    def cost(x):
+        a, c = unpack(x)
+        d = Q - c
+        h = d @ a
+        r = np.linalg.norm(d - h[:, None] * a, axis=1)
+        V = np.vander(h / (np.std(h) or 1.0), deg + 1)
+        coef, *_ = np.linalg.lstsq(V, r, rcond=None)
+        return float(np.mean(np.minimum((r - V @ coef) ** 2, trunc**2)))
+
+    r = minimize(cost, np.zeros(4), method="Nelder-Mead", options=dict(xatol=1e-5, fatol=1e-12, maxiter=2000))
+    a, c = unpack(r.x)
+    return a, c, float(np.sqrt(r.fun))
+
+
+def _basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two unit vectors orthogonal to the unit vector a and to each other."""
+    e1 = np.cross(a, [1.0, 0.0, 0.0])
+    if np.linalg.norm(e1) < 0.3:
+        e1 = np.cross(a, [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(a, e1)
+
+
+def find_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float, profile: str = "mixed", max_rms: float = 0.002
+              ) -> tuple[bool, float, np.ndarray, np.ndarray]:
+    """(is_revolution, λ̂, a, c) of the model Q, N (M,3): ``revolution_axis``; with ``profile`` "mixed" a model that
+    fails the separation test (two nearly equal weak rotations: an egg) or whose weakest direction is a slide with
+    a weak rotation next gets its axis refitted to the radius profile (``profile_axis``, from that eigen-axis),
+    kept when the profile fits within ``max_rms`` (m); "always": every axis is refitted so; "off": the eigen-axis
+    alone."""
+    ok, lam, a, c = revolution_axis(Q, N, tau, sep)
+    if ok and profile != "always":
+        return ok, lam, a, c
+    if not ok:
+        if profile == "off":
+            return ok, lam, a, c
+        ok, lam, a, c = revolution_axis(Q, N, tau, 1.0)
+        if not ok:  # the weakest direction a slide (an egg seen from few sides): the next weakest, a rotation
+            ok, lam, a, c = revolution_axis(Q, N, tau, 1.0, k=1)
+        if not ok:
+            return ok, lam, a, c
+    a2, c2, rms = profile_axis(Q, a, c)
+    if rms > max_rms:
+        return False, lam, np.zeros(3), np.zeros(3)
+    return True, lam, a2, c2
 
 
 def spin_matrix(a: np.ndarray, c: np.ndarray, theta: float) -> np.ndarray:
@@ -131,11 +197,7 @@ def spin_votes(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray,
     """Spin votes θ (K,) (rad, wrapped to (−π, π]) of matched points p (in frame i, W) and q (in anchor j, W):
     θ with S(θ) q_O = p_O, kept where radius and height about the axis agree within ``tol`` (m) and the radius is
     at least ``tol`` (points on the axis carry no azimuth)."""
-    e1 = np.cross(a, [1.0, 0.0, 0.0])
-    if np.linalg.norm(e1) < 0.3:
-        e1 = np.cross(a, [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    e2 = np.cross(a, e1)
+    e1, e2 = _basis(a)
     Xi, Xj = X_inv(X_i), X_inv(X_j)
     pO = pW @ Xi[:3, :3].T + Xi[:3, 3]
     qO = qW @ Xj[:3, :3].T + Xj[:3, 3]
@@ -160,13 +222,14 @@ def vote_mode(theta: np.ndarray, half_width: float) -> tuple[float, int]:
 
 def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, Q: np.ndarray, N: np.ndarray,
                  *, tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
-                 n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0) -> SpinResult:
+                 n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0, profile: str = "off",
+                 max_deg: float = 0.0) -> SpinResult:
     """Spin correction θ (N,) of the poses X_WO (N,4,4) of a body of revolution (module docstring) from each
     frame's interior features ``feats[i] = (points (F,3) in W, descriptors (F,32) or None)``
     (``interior_features``); X_WO is not changed (apply with ``apply_spin``). Q (M,3), N (M,3): the final model
     in O. ``match(desc_a, desc_b) -> (M,2)`` pairs descriptors (the tracker's ratio-test matcher)."""
     n = len(X_WO)
-    is_rev, lam, a, c = revolution_axis(Q, N, tau, sep)
+    is_rev, lam, a, c = find_axis(Q, N, tau, sep, profile)
     theta = np.zeros(n)
     votes = np.zeros(n, int)
     if not is_rev:
@@ -209,6 +272,10 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
 
         full = median_filter(full, size=smooth, mode="nearest")
     full[0] = 0.0
+    if max_deg > 0 and np.max(np.abs(full)) > np.radians(max_deg):
+        # a correction this large means the votes followed something other than the surface (a lost track, whose
+        # poses are off by centimetres: development bottle 561 went from 37° to 172° median): not applied
+        return SpinResult(True, lam, a, c, np.zeros(n), votes, observable, rejected=True)
     return SpinResult(True, lam, a, c, full, votes, observable)
 
 

@@ -10,7 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from service.tracking.spin import apply_spin, interior_features, revolution_axis, spin_closure, spin_matrix, spin_votes, vote_mode
+from service.tracking.spin import (apply_spin, find_axis, interior_features, revolution_axis, spin_closure, spin_matrix,
+                                   spin_votes, vote_mode)
 from service.tracking.tracker import _match
 from service.transforms import make_X, rotation_angle, so3_exp
 
@@ -152,4 +153,50 @@ def test_config_refuses_bad_spin_settings():
     for bad in ({"spin_min_votes": 0}, {"spin_tau": -0.1}, {"spin_smooth": 0}):
         with pytest.raises(ValueError):
             TrackingConfig(**bad)
-    assert not TrackingConfig().spin_closure
+    assert TrackingConfig().spin_closure  # on by default (docs/tracking.md, evaluation table of the spin closure)
+
+
+def _egg_model(n: int = 3000, noise: float = 0.2, rng=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points and noisy normals of the seen part of a prolate spheroid (semi-axes 45 mm along its axis, 32.5 mm
+    across, like the lab's egg), in an arbitrary placement: (Q (M,3), N (M,3), its axis (3,), its centre (3,)).
+    Seen from one side with noisy normals, its two weak rotations come out close (λ̂ 0.023 / 0.044) and the
+    weakest eigenvector is about 10° off the axis."""
+    rng = rng or np.random.default_rng(5)
+    d = rng.normal(size=(n, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = d[d @ np.array([0.5, 0.3, 0.8]) > 0.2]  # the side the camera saw
+    ax = np.array([0.045, 0.0325, 0.0325])
+    P = d * ax
+    Nn = P / ax**2
+    Nn /= np.linalg.norm(Nn, axis=1, keepdims=True)
+    Nn += noise * rng.normal(size=Nn.shape)  # normals of a noisy merged model
+    Nn /= np.linalg.norm(Nn, axis=1, keepdims=True)
+    P = P + 0.0005 * rng.normal(size=P.shape)
+    X = make_X(so3_exp(np.array([0.2, 0.5, -0.3])), np.array([0.01, -0.02, 0.03]))
+    return P @ X[:3, :3].T + X[:3, 3], Nn @ X[:3, :3].T, X[:3, 0], X[:3, 3]
+
+
+def test_egg_axis_from_radius_profile():
+    Q, N, axis, ctr = _egg_model()
+    ok, lam, a, c = revolution_axis(Q, N, 0.05, 1.0)
+    err_eigen = np.degrees(np.arccos(min(abs(a @ axis), 1.0)))
+    assert not revolution_axis(Q, N, 0.05, 0.5)[0]  # weak rotations too close: the eigen-axis alone is refused
+    assert not find_axis(Q, N, 0.05, 0.5, "off")[0]
+    ok, lam, a, c = find_axis(Q, N, 0.05, 0.5, "mixed")
+    assert ok
+    err = np.degrees(np.arccos(min(abs(a @ axis), 1.0)))
+    assert err < 2.0 and err < err_eigen  # the profile fixes the axis the noisy normals leave mixed
+    assert np.linalg.norm(np.cross(c - ctr, axis)) < 1e-3  # c on the axis
+
+
+def test_spin_over_cap_not_applied():
+    true = np.radians(np.arange(12) * 4.0)  # 44°: above a 30° cap, below the default 120°
+    s = _session(true)
+    Q, N = _cylinder_model()
+    X = np.tile(np.eye(4), (len(true), 1, 1))
+    f = _feats(s)
+    r = spin_closure(f, X, Q, N, **KW, max_deg=30.0)
+    assert r.is_revolution and r.observable and r.rejected
+    assert np.array_equal(apply_spin(X, r), X)
+    r = spin_closure(f, X, Q, N, **KW, max_deg=120.0)
+    assert not r.rejected and np.degrees(np.max(np.abs(r.theta))) > 40
