@@ -17,7 +17,11 @@ pair of overlapping keyframes, keyframe 0 fixed), followed by leave-one-out refi
 keyframe re-registered to the model of all the others), (c) a final pass registering every frame to the
 refined model, and (d) frame 0 registered to that model as well, the body frame moved by the constant offset
 so that X_WO(0) keeps its definition (a mismatch between frame 0 and the merged model would otherwise be an
-offset common to every other frame).
+offset common to every other frame); with ``gauge_frames`` the registration of frame 0 is replaced by the robust
+mean over frame 0 and the frames at rest before the robot reaches the object (``service.tracking.gauge``).
+Toppling landings (options, off): ``landing`` adds starts from the last step's screw continued until the model
+meets the table and rejects poses through the table or where the frame sees through the model
+(``service.tracking.landing``); ``final_neighbors`` re-registers fast frames from their neighbours' final poses.
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
 normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
 or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
