@@ -52,6 +52,5 @@ def test_landing_pose_of_a_topple_is_flat_on_the_table():
 def test_pose_consistent_rejects_a_pose_through_the_table():
     h = np.array([0.035, 0.035, 0.1])
     Q = _box_surface(h)
-    P_W = Q[:200] @ _tipped(90.0, h)[:3, :3].T + _tipped(90.0, h)[:3, 3]
     assert pose_consistent(_tipped(90.0, h), Q, 0.0, None, 0.01, 0.02, 0.05)
     assert not pose_consistent(_tipped(110.0, h), Q, 0.0, None, 0.01, 0.02, 0.05)
