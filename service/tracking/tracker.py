@@ -17,7 +17,11 @@ pair of overlapping keyframes, keyframe 0 fixed), followed by leave-one-out refi
 keyframe re-registered to the model of all the others), (c) a final pass registering every frame to the
 refined model, and (d) frame 0 registered to that model as well, the body frame moved by the constant offset
 so that X_WO(0) keeps its definition (a mismatch between frame 0 and the merged model would otherwise be an
-offset common to every other frame).
+offset common to every other frame); with ``gauge_frames`` the registration of frame 0 is replaced by the robust
+mean over frame 0 and the frames at rest before the robot reaches the object (``service.tracking.gauge``).
+Toppling landings (options, off): ``landing`` adds starts from the last step's screw continued until the model
+meets the table and rejects poses through the table or where the frame sees through the model
+(``service.tracking.landing``); ``final_neighbors`` re-registers fast frames from their neighbours' final poses.
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
 normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
 or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
@@ -433,7 +437,14 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 cands.append(Xc)
                 feat_W, feat_O = fW[inl], fO[inl]
                 n_feat[i, 0] = len(feat_W)
+        view = None
+        if cfg.landing:
+            if len(last) >= 2 and last[-2] == a - 1:
+                cands += _landing_starts(X[last[-2]], X[a], i - a, model, session.table_height)
+            view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
+            view.add(i, session.depth(i), np.eye(4))  # the frame's own depth, points given in W
         best = None
+        best_ok = True
         for Xc in cands:
             if best is not None and _good(best, cfg):
                 dt, da = _pose_dist(best.X_WO, Xc)
@@ -441,15 +452,22 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                     continue  # this start converges to the pose already found
             r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw,
                     **{**deg_kw, **col_kw("track", o.C, model)})
-            if _better(r, best):
+            if cfg.landing:
+                best, best_ok = _better_consistent(r, best, best_ok, model, session, view, cfg)
+            elif _better(r, best):
                 best = r
-        if a != i - 1 and not _good(best, cfg):
+        if a != i - 1 and not (_good(best, cfg) and best_ok):
             # re-localisation: wider search from the last tracked pose and every keyframe pose
             for kf in keyframes[::-1][:8]:
                 r = icp(o.P_W, kf.X_WO, model.tree, model.Q, model.N, N_src=o.N_W,
                         **{**icp_kw, "dist0": 2 * cfg.icp_dist0})
-                if _better(r, best):
+                if cfg.landing:
+                    best, best_ok = _better_consistent(r, best, best_ok, model, session, view, cfg)
+                elif _better(r, best):
                     best = r
+        if not best_ok:  # every start gave a pose through the table or in space seen empty
+            X[i] = X[a]
+            continue
         X[i] = best.X_WO
         frac[i], rmse[i] = best.inlier_frac, best.rmse
         if not _good(best, cfg) or _jump(X[a], X[i], session.frame_times[i] - session.frame_times[a], cfg):
@@ -532,17 +550,86 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             tracked[i] = _good(r, cfg)
             if i % 20 == 0:
                 _report(progress, 0.62 + 0.18 * i / N, f"final registration {i}/{N}")
+        if cfg.final_neighbors:
+            _final_from_neighbors(session, obs, X, tracked, frac, rmse, model, cfg, icp_kw)
         if cfg.regauge_frame0:
             from dataclasses import replace as _replace
 
             o0 = observe(session, 0, _replace(cfg, max_points=cfg.regauge_points), rng)  # dense: one frame sets O
-            model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw)
+            model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw, obs, tracked, session)
     spin = None
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
         spin = _spin_closure(obs, X, model, cfg)
     X = interpolate_untracked(X, tracked)
     return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin)
+
+
+def _landing_starts(X_b: np.ndarray, X_a: np.ndarray, gap: int, model: ObjectModel, table_height: float
+                    ) -> list[np.ndarray]:
+    """Extra starts when the motion of the tracked step b -> a (consecutive frames) continues for ``gap`` frames
+    (``service.tracking.landing``): after a loss, the screw continued over the gap (the constant-velocity
+    prediction of every frame in between); and the pose at which that screw first brings the model to the table,
+    when it does so within the gap (a topple's landing)."""
+    from service.tracking.landing import land_on_table, screw_path
+
+    out = screw_path(X_b, X_a, range(1, gap + 1)) if gap > 1 else []
+    Xl = land_on_table(X_b, X_a, model.Q, table_height, k_max=float(gap))
+    if Xl is not None:
+        out.append(Xl)
+    return out
+
+
+def _final_from_neighbors(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
+                          rmse: np.ndarray, model: ObjectModel, cfg: TrackingConfig, icp_kw: dict) -> None:
+    """Second start for the final registration of frames whose neighbours' final poses differ from theirs by more
+    than ``final_nb_deg`` / ``final_nb_dist`` (fast turns: a landing frame whose tracking-loop start lagged): the
+    registration from the neighbour's pose replaces the frame's when it fits better (inlier fraction, residual) and
+    is consistent with the table and the frame's own free space (``landing.pose_consistent``). Neighbour poses
+    are those of the final pass (not updated during this sweep). Updates X, tracked, frac, rmse in place."""
+    from service.tracking.landing import pose_consistent
+
+    X0 = X.copy()
+    Q = model.Q[:: max(1, len(model.Q) // 4000)]
+    for i in range(1, len(obs)):
+        o = obs[i]
+        if len(o.P_W) < cfg.min_points:
+            continue
+        starts = [X0[j] for j in (i - 1, i + 1) if 0 < j < len(obs) and tracked[j]
+                  and any(np.array(_pose_dist(X0[i], X0[j])) > (cfg.final_nb_dist, cfg.final_nb_deg))]
+        if not starts:
+            continue
+        view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
+        view.add(i, session.depth(i), np.eye(4))
+
+        def ok(Xc: np.ndarray) -> bool:
+            return pose_consistent(Xc, Q, session.table_height, view, cfg.landing_table_margin,
+                                   cfg.landing_table_frac, cfg.landing_seen_frac)
+
+        cur = IcpResult(X[i], frac[i], rmse[i], 0, np.zeros(0))
+        cur_ok = ok(X[i])
+        for Xs in starts:
+            r = icp(o.P_W, Xs, model.tree, model.Q, model.N, N_src=o.N_W,
+                    **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
+            r_ok = _good(r, cfg) and ok(r.X_WO)
+            if r_ok and (not cur_ok or _better(r, cur)):
+                cur, cur_ok = r, True
+        X[i], frac[i], rmse[i] = cur.X_WO, cur.inlier_frac, cur.rmse
+        tracked[i] = _good(cur, cfg)
+
+
+def _better_consistent(r: IcpResult, best: IcpResult | None, best_ok: bool, model: ObjectModel, session,
+                       view: "FreeSpace | None", cfg: TrackingConfig) -> tuple[IcpResult, bool]:
+    """The better of r and best where a pose consistent with the table and the frame's free space
+    (``landing.pose_consistent``) beats any inconsistent one; returns (best, whether it is consistent)."""
+    from service.tracking.landing import pose_consistent
+
+    Q = model.Q[:: max(1, len(model.Q) // 4000)]
+    ok = pose_consistent(r.X_WO, Q, session.table_height, view, cfg.landing_table_margin, cfg.landing_table_frac,
+                         cfg.landing_seen_frac)
+    if best is None or (ok and not best_ok) or (ok == best_ok and _better(r, best)):
+        return r, ok
+    return best, best_ok
 
 
 def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig) -> "SpinResult":
@@ -560,19 +647,26 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
 
 
 def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], carver: "FreeSpace | None",
-             cfg: TrackingConfig, icp_kw: dict) -> ObjectModel:
+             cfg: TrackingConfig, icp_kw: dict, obs: list[FrameObs] | None = None,
+             tracked: np.ndarray | None = None, session=None) -> ObjectModel:
     """Register frame 0 to the final model like every other frame (pose X̂_0 of the model frame M) and move
     the body frame so that X_WO(0) keeps its definition X_0 (identity rotation, centroid origin):
     X_WO(i) ← X_WO(i) D with D = X̂_0⁻¹ X_0 = X_MO, model and keyframe points p_O = D⁻¹ p_M. Otherwise a
     mismatch between frame 0's own points and the merged model of all keyframes would be an offset common to
-    all other frames. Updates X, keyframes and carver in place; returns the model in the new frame."""
+    all other frames. Updates X, keyframes and carver in place; returns the model in the new frame.
+    With ``gauge_loo`` frame 0 is registered to the model without keyframe 0, with ``gauge_frames`` X̂_0 is the
+    robust mean over frame 0 and the frames at rest before the robot reaches the object (``service.tracking.gauge``)."""
     if len(o0.P_W) < cfg.min_points:
         return model
-    r = icp(o0.P_W, X[0], model.tree, model.Q, model.N, N_src=o0.N_W,
+    reg = _model_from(keyframes[1:], cfg.model_voxel) if cfg.gauge_loo and len(keyframes) > 2 else model
+    r = icp(o0.P_W, X[0], reg.tree, reg.Q, reg.N, N_src=o0.N_W,
             **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
-    if not _good(r, cfg):
+    X0_hat = r.X_WO if _good(r, cfg) else None
+    if cfg.gauge_frames > 0 and obs is not None and tracked is not None and session is not None:
+        X0_hat = _gauge_from_early(session, X0_hat, X, obs, tracked, model, cfg)
+    if X0_hat is None:
         return model
-    D = X_inv(r.X_WO) @ X[0]
+    D = X_inv(X0_hat) @ X[0]
     Di = X_inv(D)
     X[1:] = X[1:] @ D
     for kf in keyframes:
@@ -582,6 +676,19 @@ def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Ke
         if carver is not None:
             carver.update_pose(kf.index, kf.X_WO)
     return _model_from(keyframes, cfg.model_voxel)
+
+
+def _gauge_from_early(session, X0_hat: np.ndarray | None, X: np.ndarray, obs: list[FrameObs], tracked: np.ndarray,
+                      model: ObjectModel, cfg: TrackingConfig) -> np.ndarray | None:
+    """X̂_0 from frame 0 and up to ``gauge_frames`` frames at rest before the robot reaches the object
+    (``service.tracking.gauge``)."""
+    from service.tracking.gauge import gauge_pose, rest_frames
+
+    robot = len(getattr(session, "robot_t", ())) > 0 and session.ee_radius > 0
+    rest = rest_frames(X, tracked, np.array([len(o.P_W) for o in obs]), np.asarray(session.p_WE, float) if robot else None,
+                       session.ee_radius, model.tree, cfg.gauge_frames, cfg.gauge_ee_margin, cfg.gauge_max_deg,
+                       cfg.gauge_max_dist, cfg.min_points)
+    return gauge_pose(X0_hat, X, rest)
 
 
 def _bundle_adjust(keyframes: list[Keyframe], cfg: TrackingConfig, rng: np.random.Generator,

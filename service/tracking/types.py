@@ -166,6 +166,29 @@ class TrackingConfig:
     # every axis so ("always") or none ("off"); a correction above spin_max_deg in any frame is not applied (0: no cap)
     spin_profile: str = "mixed"
     spin_max_deg: float = 120.0
+    # gauge of the body frame (service.tracking.gauge): X̂_0 = robust mean of frame 0's registration to the final
+    # model and of the final poses of up to gauge_frames frames at rest — before the end effector comes within
+    # ee_radius + gauge_ee_margin of the model, within gauge_max_deg / gauge_max_dist of frame 0 (0: frame 0 alone;
+    # no robot data: frame 0 alone); gauge_loo: frame 0 registered to the model without keyframe 0 (its own points).
+    # On: l_block 702 2.72° / 5.40° -> 1.59° / 4.04°, no material loss elsewhere (docs/tracking.md, "Worst frames")
+    gauge_frames: int = 30
+    gauge_max_deg: float = 5.0
+    gauge_max_dist: float = 0.01
+    gauge_ee_margin: float = 0.02
+    gauge_loo: bool = False
+    # toppling landings (service.tracking.landing): extra starts from the last step's screw continued over a gap
+    # and stopped where the model meets the table; a pose whose model lies more than landing_table_margin below the
+    # table (over landing_table_frac of its points) or covers pixels where the frame sees through it loses to any
+    # consistent one, and a frame with no consistent pose is lost
+    landing: bool = False
+    landing_table_margin: float = 0.01
+    landing_table_frac: float = 0.02
+    landing_seen_frac: float = 0.05  # ... or more of its points where the frame's depth reading lies behind them
+    # final pass: frames whose neighbours' final poses differ by more than final_nb_deg / final_nb_dist are also
+    # registered from those poses; the better consistent fit wins (tracker._final_from_neighbors)
+    final_neighbors: bool = False
+    final_nb_deg: float = 2.0
+    final_nb_dist: float = 0.005
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -174,7 +197,9 @@ class TrackingConfig:
         self.stage_set("color_stages")
         for name in ("w_feat_degen", "w_color", "max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
                      "spin_border_px", "spin_tol", "spin_inlier_deg", "kf_still_rate_deg", "kf_still_max_frames",
-                     "crease_dist"):
+                     "crease_dist", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
+                     "landing_table_margin", "landing_table_frac", "landing_seen_frac",
+                     "final_nb_deg", "final_nb_dist"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         for name in ("spin_features", "spin_min_votes", "spin_smooth"):
