@@ -160,6 +160,12 @@ class TrackingConfig:
     sdf_carve_init: bool = True
     sdf_carve_value: float = 0.005  # S (m) given to those voxels
     sdf_drop_flying: bool = False  # no object rays at depth jumps inside the mask (flying pixels; edge_jump test)
+    # the band behind each object ray ends where another view saw the point in front of its own reading (free space
+    # or the far side of a thin wall), else keeps trunc (service.sdf.evidence_band; visible.band_depth)
+    sdf_band_evidence: bool = False
+    sdf_band_margin: float = 0.002  # m: a view contradicts the band only beyond its reading + this
+    sdf_band_px: int = 2  # min filter (pixels) of the views' depth, so that silhouettes do not count
+    sdf_band_frames: int = 0  # evenly spread tracked frames whose views limit the band (0: the SDF's frames)
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -178,6 +184,9 @@ class TrackingConfig:
         for name in ("kf_still_speed", "kf_still_tilt_deg"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
+        for name in ("sdf_band_margin", "sdf_band_px", "sdf_band_frames"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
 

@@ -12,6 +12,9 @@ lies more than the carve margin behind the voxel) are set outside, S ← max(S, 
 fit; the free-space term of the fit alone, an L1 push of weight 1 against the band term's 3000, leaves most of
 them filled.
 
+Evidence band (``band_depth``, ``sdf_band_evidence``): the band behind each object ray ends where another of the
+frames saw that point in front of its own reading (``service.sdf.evidence_band``), else keeps its depth.
+
 V: vertices of the convex hull of the visible mesh plus ``visible_samples`` area-uniform samples on the hull,
 kept when, in at least one checked frame, the point projects inside the object mask with observed depth
 agreeing with its own depth, |z_point − z_obs| < ``visible_depth_tol``.
@@ -130,6 +133,18 @@ def carved_init(rays: RaySet, sdf_cfg, carver, value: float) -> "SdfGrid":
         idx = np.nonzero(inside)[0][st]
         S[idx] = value
     return SdfGrid(origin_O=origin, voxel=voxel, values=S.reshape(shape).astype(np.float32))
+
+
+def band_depth(session, X_WO: np.ndarray, frames: np.ndarray, rays: RaySet, cfg) -> np.ndarray:
+    """(R,) depth of the SDF band behind each ray of ``rays`` (m): ``service.sdf.evidence_band`` with the views of
+    ``frames`` (tracked poses X_WO) — where another view saw a point behind a reading in front of its own surface,
+    the band ends there (``sdf_band_evidence``)."""
+    from service.sdf import evidence_band
+
+    X_CW = X_inv(session.X_WC)
+    views = [(session.K, X_CW @ X_WO[int(i)], session.depth(int(i))) for i in frames]
+    return evidence_band(rays, views, cfg.sdf.trunc if cfg.sdf.trunc_back is None else cfg.sdf.trunc_back,
+                         margin=cfg.sdf_band_margin, px=cfg.sdf_band_px)
 
 
 def visible_points(session, X_WO: np.ndarray, frames: np.ndarray, mesh: Mesh, cfg,
