@@ -38,6 +38,44 @@ def _min_filter(depth: np.ndarray, px: int) -> np.ndarray:
     return d
 
 
+def _seen_in_front(P: np.ndarray, views, margin: float, px: int, count: int = 1) -> np.ndarray:
+    """(P,) bool: at least ``count`` views see the point (P,3) in front of their own reading by more than
+    ``margin`` (depth min-filtered over (2·px+1)² pixels)."""
+    n = np.zeros(len(P), np.int32)
+    for K, X_CO, depth in views:
+        dm = _min_filter(np.asarray(depth), px)
+        todo = np.nonzero(n < count)[0]
+        Q = P[todo] @ X_CO[:3, :3].T + X_CO[:3, 3]
+        z = Q[:, 2]
+        zz = np.where(z > 1e-6, z, 1.0)
+        u = np.round(K[0, 0] * Q[:, 0] / zz + K[0, 2]).astype(np.int64)
+        v = np.round(K[1, 1] * Q[:, 1] / zz + K[1, 2]).astype(np.int64)
+        ins = (z > 1e-6) & (u >= 0) & (u < dm.shape[1]) & (v >= 0) & (v < dm.shape[0])
+        zo = dm[v[ins], u[ins]]
+        idx = todo[ins]
+        n[idx[(zo < 1e2) & (zo > z[ins] + margin)]] += 1
+    return n >= count
+
+
+def contradicted_readings(
+    rays: RaySet,
+    views: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    *,
+    margin: float = 0.003,
+    px: int = 2,
+    min_views: int = 1,
+) -> np.ndarray:
+    """(R,) bool: object rays whose surface point at least ``min_views`` views of ``views`` saw in front of their
+    own reading by more than ``margin`` (depth min-filtered over (2·px+1)² pixels) — a reading that other views
+    contradict (a flying pixel between a near and a far surface, a misregistered edge); False for free rays.
+    ``min_views`` > 1 tolerates a view whose pose is off."""
+    out = np.zeros(len(rays), bool)
+    obj = np.nonzero(rays.depth > 0)[0]
+    if len(obj) and len(views):
+        out[obj] = _seen_in_front(rays.surface_points_O, views, margin, px, min_views)  # surface_points_O: the object rays, in order
+    return out
+
+
 def evidence_band(
     rays: RaySet,
     views: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
@@ -64,18 +102,7 @@ def evidence_band(
     o, dvec, d = rays.origins_O[obj], rays.dirs_O[obj], rays.depth[obj]
     P = o[:, None, :] + (d[:, None] + dz[None, :])[..., None] * dvec[:, None, :]  # (M,n,3)
     P = P.reshape(-1, 3)
-    hit = np.zeros(len(P), bool)
-    for K, X_CO, depth in views:
-        dm = _min_filter(np.asarray(depth), px)
-        Q = P @ X_CO[:3, :3].T + X_CO[:3, 3]
-        z = Q[:, 2]
-        zz = np.where(z > 1e-6, z, 1.0)
-        u = np.round(K[0, 0] * Q[:, 0] / zz + K[0, 2]).astype(np.int64)
-        v = np.round(K[1, 1] * Q[:, 1] / zz + K[1, 2]).astype(np.int64)
-        ins = (z > 1e-6) & (u >= 0) & (u < dm.shape[1]) & (v >= 0) & (v < dm.shape[0]) & ~hit
-        zo = dm[v[ins], u[ins]]
-        idx = np.nonzero(ins)[0]
-        hit[idx[(zo < 1e2) & (zo > z[ins] + margin)]] = True
+    hit = _seen_in_front(P, views, margin, px)
     hit = hit.reshape(len(obj), n)
     first = np.where(hit.any(1), hit.argmax(1), n)  # index of the first contradicted sample, n = none
     out[obj] = np.where(first < n, np.maximum(dz[np.minimum(first, n - 1)] - 0.5 * step - margin, 0.0), np.inf)

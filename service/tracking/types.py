@@ -166,6 +166,11 @@ class TrackingConfig:
     sdf_band_margin: float = 0.002  # m: a view contradicts the band only beyond its reading + this
     sdf_band_px: int = 2  # min filter (pixels) of the views' depth, so that silhouettes do not count
     sdf_band_frames: int = 0  # evenly spread tracked frames whose views limit the band (0: the SDF's frames)
+    # object rays whose point another frame saw in front of its own reading by more than sdf_contradict_margin
+    # (min filter sdf_band_px) are dropped (visible.drop_contradicted; flying pixels, misregistered edges)
+    sdf_drop_contradicted: bool = False
+    sdf_contradict_margin: float = 0.005
+    sdf_contradict_views: int = 1  # ... by at least this many frames
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -184,9 +189,11 @@ class TrackingConfig:
         for name in ("kf_still_speed", "kf_still_tilt_deg"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
-        for name in ("sdf_band_margin", "sdf_band_px", "sdf_band_frames"):
+        for name in ("sdf_band_margin", "sdf_band_px", "sdf_band_frames", "sdf_contradict_margin"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        if not self.sdf_contradict_views >= 1:
+            raise ValueError(f"TrackingConfig.sdf_contradict_views must be >= 1, not {self.sdf_contradict_views!r}")
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
 

@@ -12,8 +12,10 @@ lies more than the carve margin behind the voxel) are set outside, S ← max(S, 
 fit; the free-space term of the fit alone, an L1 push of weight 1 against the band term's 3000, leaves most of
 them filled.
 
-Evidence band (``band_depth``, ``sdf_band_evidence``): the band behind each object ray ends where another of the
-frames saw that point in front of its own reading (``service.sdf.evidence_band``), else keeps its depth.
+Other views' evidence: ``drop_contradicted`` (``sdf_drop_contradicted``) drops the object rays whose surface point
+another of the frames saw in front of its own reading (``service.sdf.contradicted_readings``: flying pixels,
+misregistered edges); ``band_depth`` (``sdf_band_evidence``) gives the thickness behind each reading that other
+frames measured (``service.sdf.evidence_band``), for ``fit_sdf(band_back=...)``.
 
 V: vertices of the convex hull of the visible mesh plus ``visible_samples`` area-uniform samples on the hull,
 kept when, in at least one checked frame, the point projects inside the object mask with observed depth
@@ -135,16 +137,29 @@ def carved_init(rays: RaySet, sdf_cfg, carver, value: float) -> "SdfGrid":
     return SdfGrid(origin_O=origin, voxel=voxel, values=S.reshape(shape).astype(np.float32))
 
 
+def _views(session, X_WO: np.ndarray, frames: np.ndarray) -> list:
+    X_CW = X_inv(session.X_WC)
+    return [(session.K, X_CW @ X_WO[int(i)], session.depth(int(i))) for i in frames]
+
+
 def band_depth(session, X_WO: np.ndarray, frames: np.ndarray, rays: RaySet, cfg) -> np.ndarray:
-    """(R,) depth of the SDF band behind each ray of ``rays`` (m): ``service.sdf.evidence_band`` with the views of
-    ``frames`` (tracked poses X_WO) — where another view saw a point behind a reading in front of its own surface,
-    the band ends there (``sdf_band_evidence``)."""
+    """(R,) thickness of the object behind each ray of ``rays`` (m, ∞ = unknown): ``service.sdf.evidence_band``
+    with the views of ``frames`` (tracked poses X_WO), for ``fit_sdf(band_back=...)`` (``sdf_band_evidence``)."""
     from service.sdf import evidence_band
 
-    X_CW = X_inv(session.X_WC)
-    views = [(session.K, X_CW @ X_WO[int(i)], session.depth(int(i))) for i in frames]
-    return evidence_band(rays, views, cfg.sdf.trunc if cfg.sdf.trunc_back is None else cfg.sdf.trunc_back,
-                         margin=cfg.sdf_band_margin, px=cfg.sdf_band_px)
+    return evidence_band(rays, _views(session, X_WO, frames), cfg.sdf.trunc, margin=cfg.sdf_band_margin,
+                         px=cfg.sdf_band_px)
+
+
+def drop_contradicted(session, X_WO: np.ndarray, frames: np.ndarray, rays: RaySet, cfg) -> RaySet:
+    """``rays`` without the object rays whose surface point a view of ``frames`` saw in front of its own reading by
+    more than ``sdf_contradict_margin`` (``service.sdf.contradicted_readings``; ``sdf_drop_contradicted``)."""
+    from service.sdf import contradicted_readings
+
+    bad = contradicted_readings(rays, _views(session, X_WO, frames), margin=cfg.sdf_contradict_margin,
+                                px=cfg.sdf_band_px, min_views=cfg.sdf_contradict_views)
+    k = ~bad
+    return RaySet(rays.origins_O[k], rays.dirs_O[k], rays.depth[k], rays.free_until[k], rays.weight[k])
 
 
 def visible_points(session, X_WO: np.ndarray, frames: np.ndarray, mesh: Mesh, cfg,
