@@ -6,8 +6,9 @@ Entry point ``run(TrackingInputs, TrackingConfig, *, progress=None) -> TrackingO
    model, keyframe bundle adjustment (``service.tracking.posegraph``) and leave-one-out refinement, lost-track
    detection and re-localisation, interpolation of untracked frames;
 2. velocities (``service.tracking.velocity``): median-filtered backward differences (method-notes §1.3);
-3. visible SDF (``service.sdf.fit_sdf``) from the depth rays of tracked frames, started from the hull of the seen
-   points carved by the keyframes' free space (``visible.carved_init``), marching cubes -> visible mesh;
+3. visible SDF (``service.sdf.fit_sdf``) from the depth rays of tracked frames (without the readings other frames
+   saw through, ``visible.drop_contradicted``), started from the hull of the seen points carved by the keyframes'
+   free space (``visible.carved_init``), marching cubes -> visible mesh;
 4. visible set V (``service.tracking.visible``): convex-hull points of the mesh that pass a visibility check.
 See docs/tracking.md.
 """
