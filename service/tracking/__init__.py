@@ -6,8 +6,9 @@ Entry point ``run(TrackingInputs, TrackingConfig, *, progress=None) -> TrackingO
    model, keyframe bundle adjustment (``service.tracking.posegraph``) and leave-one-out refinement, lost-track
    detection and re-localisation, interpolation of untracked frames;
 2. velocities (``service.tracking.velocity``): median-filtered backward differences (method-notes §1.3);
-3. visible SDF (``service.sdf.fit_sdf``) from the depth rays of tracked frames, started from the hull of the seen
-   points carved by the keyframes' free space (``visible.carved_init``), marching cubes -> visible mesh;
+3. visible SDF (``service.sdf.fit_sdf``) from the depth rays of tracked frames (without the readings other frames
+   saw through, ``visible.drop_contradicted``), started from the hull of the seen points carved by the keyframes'
+   free space (``visible.carved_init``), marching cubes -> visible mesh;
 4. visible set V (``service.tracking.visible``): convex-hull points of the mesh that pass a visibility check.
 See docs/tracking.md.
 """
@@ -21,7 +22,7 @@ from service.sdf import extract_mesh, fit_sdf
 from service.tracking.tracker import track
 from service.tracking.types import TrackingConfig, TrackingInputs, TrackingOutputs
 from service.tracking.velocity import velocities
-from service.tracking.visible import below_table_halfspace, carved_init, pick_frames, sdf_rays, visible_points
+from service.tracking.visible import band_depth, below_table_halfspace, drop_contradicted, carved_init, pick_frames, sdf_rays, visible_points
 
 __all__ = ["run", "TrackingConfig", "TrackingInputs", "TrackingOutputs"]
 
@@ -47,8 +48,14 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
         progress(0.6, f"visible SDF from {len(frames)} frames")
     rays = sdf_rays(s, tr.X_WO, frames, tr.model.tree, cfg, rng, carver=tr.carver)
     halfspace = below_table_halfspace(tr.X_WO[0], s.table_height) if cfg.below_table_outside else None
+    band = None
+    ev_frames = pick_frames(tr.tracked, cfg.sdf_band_frames) if cfg.sdf_band_frames else frames
+    if cfg.sdf_drop_contradicted:
+        rays = drop_contradicted(s, tr.X_WO, ev_frames, rays, cfg)
+    if cfg.sdf_band_evidence:
+        band = band_depth(s, tr.X_WO, ev_frames, rays, cfg)
     init = carved_init(rays, cfg.sdf, tr.carver, cfg.sdf_carve_value) if cfg.sdf_carve_init and tr.carver is not None else None
-    grid = fit_sdf(rays, cfg.sdf, init=init, halfspace_O=halfspace, progress=rep(0.6, 0.95))
+    grid = fit_sdf(rays, cfg.sdf, init=init, halfspace_O=halfspace, progress=rep(0.6, 0.95), band_back=band)
     mesh = extract_mesh(grid)
     if mesh.is_empty:
         raise StageFailed("tracking", "the visible SDF has no zero level set (no object surface reconstructed)")

@@ -12,6 +12,11 @@ lies more than the carve margin behind the voxel) are set outside, S ← max(S, 
 fit; the free-space term of the fit alone, an L1 push of weight 1 against the band term's 3000, leaves most of
 them filled.
 
+Other views' evidence: ``drop_contradicted`` (``sdf_drop_contradicted``) drops the object rays whose surface point
+another of the frames saw in front of its own reading (``service.sdf.contradicted_readings``: flying pixels,
+misregistered edges); ``band_depth`` (``sdf_band_evidence``) gives the thickness behind each reading that other
+frames measured (``service.sdf.evidence_band``), for ``fit_sdf(band_back=...)``.
+
 V: vertices of the convex hull of the visible mesh plus ``visible_samples`` area-uniform samples on the hull,
 kept when, in at least one checked frame, the point projects inside the object mask with observed depth
 agreeing with its own depth, |z_point − z_obs| < ``visible_depth_tol``.
@@ -130,6 +135,31 @@ def carved_init(rays: RaySet, sdf_cfg, carver, value: float) -> "SdfGrid":
         idx = np.nonzero(inside)[0][st]
         S[idx] = value
     return SdfGrid(origin_O=origin, voxel=voxel, values=S.reshape(shape).astype(np.float32))
+
+
+def _views(session, X_WO: np.ndarray, frames: np.ndarray) -> list:
+    X_CW = X_inv(session.X_WC)
+    return [(session.K, X_CW @ X_WO[int(i)], session.depth(int(i))) for i in frames]
+
+
+def band_depth(session, X_WO: np.ndarray, frames: np.ndarray, rays: RaySet, cfg) -> np.ndarray:
+    """(R,) thickness of the object behind each ray of ``rays`` (m, ∞ = unknown): ``service.sdf.evidence_band``
+    with the views of ``frames`` (tracked poses X_WO), for ``fit_sdf(band_back=...)`` (``sdf_band_evidence``)."""
+    from service.sdf import evidence_band
+
+    return evidence_band(rays, _views(session, X_WO, frames), cfg.sdf.trunc, margin=cfg.sdf_band_margin,
+                         px=cfg.sdf_band_px)
+
+
+def drop_contradicted(session, X_WO: np.ndarray, frames: np.ndarray, rays: RaySet, cfg) -> RaySet:
+    """``rays`` without the object rays whose surface point a view of ``frames`` saw in front of its own reading by
+    more than ``sdf_contradict_margin`` (``service.sdf.contradicted_readings``; ``sdf_drop_contradicted``)."""
+    from service.sdf import contradicted_readings
+
+    bad = contradicted_readings(rays, _views(session, X_WO, frames), margin=cfg.sdf_contradict_margin,
+                                px=cfg.sdf_band_px, min_views=cfg.sdf_contradict_views)
+    k = ~bad
+    return RaySet(rays.origins_O[k], rays.dirs_O[k], rays.depth[k], rays.free_until[k], rays.weight[k])
 
 
 def visible_points(session, X_WO: np.ndarray, frames: np.ndarray, mesh: Mesh, cfg,
