@@ -105,12 +105,13 @@ class FusionConfig:
     table_clearance: float = 0.005  # object pixels must back-project this far above the table, m
     denoise: float = 0.02  # ... and within this of the visible SDF's zero level set, m
     # ... and, with drop_flying, not at a depth jump: every 4-neighbour has a reading within edge_jump + 2 % of its
-    # depth (service.tracking.geometry.depth_continuous, the tracking points' flying-pixel test). Off: it removes the
-    # lumps of a box's fused surface (strike sessions) but shrinks round bodies (seed-11 store; docs/fusion.md)
-    drop_flying: bool = False
+    # depth (service.tracking.geometry.depth_continuous, the tracking points' flying-pixel test): a blend across a
+    # discontinuity, or a contour reading whose near-surface band reaches past the silhouette edge. The removed
+    # readings still join the hull start (flying_in_hull; without it round bodies and the prism shrink). docs/fusion.md
+    drop_flying: bool = True
     edge_jump: float = 0.01  # m
     flying_holes: bool = True  # a neighbour without a reading counts as a jump (as in the tracking's test)
-    flying_in_hull: bool = False  # the readings it removes still join the hull start (they give no ray)
+    flying_in_hull: bool = True  # the readings it removes still join the hull start (they give no ray)
     pad: float = 0.02  # m around visible ∪ physible points
     max_physible_distance: float = 0.15  # physible points farther than this from the visible box are dropped, m
     anchor_samples: int = 25_000  # surface samples of the physible mesh tested as hyperplane anchors
