@@ -409,6 +409,9 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                     color_tau=cfg.color_tau, color_rot_only=cfg.color_rot_only)
 
     deg_kw = deg_kw_for("track")
+    sil_st = cfg.stage_set("sil_stages") if cfg.w_sil > 0 else frozenset()
+    rims: dict[int, np.ndarray] = {0: _rim(session, 0, cfg)} if sil_st else {}  # keyframe index -> rim points in W
+    sil_Q = _sil_model(model, keyframes, rims, cfg) if sil_st else None
     n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
     frng = np.random.default_rng(cfg.seed + 1)  # RANSACs of the keyframe features (own stream: rng unchanged)
     for i in range(1, N):
@@ -450,6 +453,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                         **{**icp_kw, "dist0": 2 * cfg.icp_dist0})
                 if _better(r, best):
                     best = r
+        if "track" in sil_st and _good(best, cfg):
+            best = _sil_refine(session, i, o.P_W, best, model, sil_Q, cfg)
         X[i] = best.X_WO
         frac[i], rmse[i] = best.inlier_frac, best.rmse
         if not _good(best, cfg) or _jump(X[a], X[i], session.frame_times[i] - session.frame_times[a], cfg):
@@ -492,6 +497,9 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 if carver is not None:
                     carver.add(i, session.depth(i), X[i])
                 model = _model_from(keyframes, cfg.model_voxel)
+                if sil_st:
+                    rims[i] = _rim(session, i, cfg)
+                    sil_Q = _sil_model(model, keyframes, rims, cfg)
         if i % 10 == 0:
             _report(progress, 0.6 * i / N, f"tracking frame {i}/{N}, {len(keyframes)} keyframes")
 
@@ -509,6 +517,9 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                                       cfg, frng) if "refine" in stages else (None, None)
                 r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=kf.N_W,
                         **{**icp_kw, "dist0": 0.015}, **{**deg_kw_for("refine"), **col_kw("refine", kf.C, others)})
+                if "refine" in sil_st and _good(r, cfg):
+                    r = _sil_refine(session, kf.index, kf.P_W, r, others,
+                                    _sil_model(others, [kk for j, kk in enumerate(keyframes) if j != k], rims, cfg), cfg)
                 if _good(r, cfg):
                     kf.X_WO = r.X_WO
                     X_OW = X_inv(r.X_WO)
@@ -518,6 +529,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                         carver.update_pose(kf.index, r.X_WO)
             model = _model_from(keyframes, cfg.model_voxel)
     if cfg.final_pass:
+        if "final" in sil_st:
+            sil_Q = _sil_model(model, keyframes, rims, cfg)
         for i in range(1, N):
             o = obs[i]
             if len(o.P_W) < cfg.min_points:
@@ -528,6 +541,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             r = icp(o.P_W, start, model.tree, model.Q, model.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=o.N_W,
                     **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters},
                     **{**deg_kw_for("final"), **col_kw("final", o.C, model)})
+            if "final" in sil_st and _good(r, cfg):
+                r = _sil_refine(session, i, o.P_W, r, model, sil_Q, cfg)
             X[i], frac[i], rmse[i] = r.X_WO, r.inlier_frac, r.rmse
             tracked[i] = _good(r, cfg)
             if i % 20 == 0:
@@ -669,6 +684,45 @@ def _kf_features(kp_W: np.ndarray, desc: np.ndarray | None, X_WO: np.ndarray, ke
     if dt > 0.03 or da > 30.0:
         return None, None
     return fW[inl], fO[inl]
+
+
+def _rim(session, i: int, cfg: TrackingConfig) -> np.ndarray:
+    """Rim points (W) of frame i for the silhouette model (``silhouette.rim_points``); none with sil_rim off."""
+    from service.tracking.silhouette import rim_points
+
+    if not cfg.sil_rim:
+        return np.zeros((0, 3))
+    P = rim_points(session.depth(i), session.mask(i), session.K, session.X_WC, cfg.erode_px, cfg.edge_jump,
+                   session.table_height, cfg.table_clearance)
+    return P[~near_effector(session, i, P, cfg)]
+
+
+def _sil_model(model: ObjectModel, keyframes: list[Keyframe], rims: dict[int, np.ndarray],
+               cfg: TrackingConfig) -> np.ndarray:
+    """Points (O) whose projections the silhouette term tests: the model plus the keyframes' rim points."""
+    from service.tracking.silhouette import model_points
+
+    parts = [model.Q]
+    for kf in keyframes:
+        R = rims.get(kf.index)
+        if R is not None and len(R):
+            X_OW = X_inv(kf.X_WO)
+            parts.append(R @ X_OW[:3, :3].T + X_OW[:3, 3])
+    return model_points(parts, cfg.model_voxel, cfg.sil_points)
+
+
+def _sil_refine(session, i: int, P_W: np.ndarray, r: IcpResult, model: ObjectModel, sil_Q: np.ndarray,
+                cfg: TrackingConfig) -> IcpResult:
+    """ICP result r of frame i refined with the silhouette term (``silhouette.refine``); r when the refined pose
+    fails the lost-track test."""
+    from service.tracking.silhouette import make_view, refine
+
+    view = make_view(session.depth(i), session.mask(i), session.K, session.X_WC, jump=cfg.edge_jump)
+    out = refine(P_W, r.X_WO, model.tree, model.Q, model.N, sil_Q, view, iters=cfg.sil_iters, dist=cfg.icp_dist_min,
+                 inlier_dist=cfg.inlier_dist, w_sil=cfg.w_sil, tol_px=cfg.sil_tol_px, occ_margin=cfg.sil_occ_margin,
+                 huber_px=cfg.sil_huber_px, max_px=cfg.sil_max_px, w_front=cfg.sil_w_front,
+                 front_margin=cfg.sil_front_margin)
+    return out if _good(out, cfg) else r
 
 
 def interpolate_untracked(X_WO: np.ndarray, tracked: np.ndarray) -> np.ndarray:
