@@ -551,7 +551,11 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             from dataclasses import replace as _replace
 
             o0 = observe(session, 0, _replace(cfg, max_points=cfg.regauge_points), rng)  # dense: one frame sets O
-            model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw)
+            sil0 = None
+            if "final" in sil_st:  # frame 0 registered like the others, or their silhouette shift becomes an offset
+                def sil0(r: IcpResult, m: ObjectModel) -> IcpResult:
+                    return _sil_refine(session, 0, o0.P_W, r, m, _sil_model(m, keyframes, rims, cfg), cfg)
+            model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw, sil0)
     spin = None
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
@@ -574,16 +578,19 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
 
 
 def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], carver: "FreeSpace | None",
-             cfg: TrackingConfig, icp_kw: dict) -> ObjectModel:
+             cfg: TrackingConfig, icp_kw: dict, sil: Callable | None = None) -> ObjectModel:
     """Register frame 0 to the final model like every other frame (pose X̂_0 of the model frame M) and move
     the body frame so that X_WO(0) keeps its definition X_0 (identity rotation, centroid origin):
     X_WO(i) ← X_WO(i) D with D = X̂_0⁻¹ X_0 = X_MO, model and keyframe points p_O = D⁻¹ p_M. Otherwise a
     mismatch between frame 0's own points and the merged model of all keyframes would be an offset common to
-    all other frames. Updates X, keyframes and carver in place; returns the model in the new frame."""
+    all other frames. ``sil``: the silhouette refinement of the final pass, applied to frame 0 too.
+    Updates X, keyframes and carver in place; returns the model in the new frame."""
     if len(o0.P_W) < cfg.min_points:
         return model
     r = icp(o0.P_W, X[0], model.tree, model.Q, model.N, N_src=o0.N_W,
             **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
+    if sil is not None and _good(r, cfg):
+        r = sil(r, model)  # silhouette term (sil_stages "final"), as for the other frames
     if not _good(r, cfg):
         return model
     D = X_inv(r.X_WO) @ X[0]
@@ -692,8 +699,8 @@ def _rim(session, i: int, cfg: TrackingConfig) -> np.ndarray:
 
     if not cfg.sil_rim:
         return np.zeros((0, 3))
-    P = rim_points(session.depth(i), session.mask(i), session.K, session.X_WC, cfg.erode_px, cfg.edge_jump,
-                   session.table_height, cfg.table_clearance)
+    P = rim_points(session.depth(i), session.mask(i), session.K, session.X_WC, cfg.erode_px, session.table_height,
+                   cfg.table_clearance)
     return P[~near_effector(session, i, P, cfg)]
 
 
@@ -717,7 +724,8 @@ def _sil_refine(session, i: int, P_W: np.ndarray, r: IcpResult, model: ObjectMod
     fails the lost-track test."""
     from service.tracking.silhouette import make_view, refine
 
-    view = make_view(session.depth(i), session.mask(i), session.K, session.X_WC, jump=cfg.edge_jump)
+    view = make_view(session.depth(i), session.mask(i), session.K, session.X_WC, jump=cfg.edge_jump,
+                     pad=int(np.ceil(cfg.sil_max_px)) + 4)
     out = refine(P_W, r.X_WO, model.tree, model.Q, model.N, sil_Q, view, iters=cfg.sil_iters, dist=cfg.icp_dist_min,
                  inlier_dist=cfg.inlier_dist, w_sil=cfg.w_sil, tol_px=cfg.sil_tol_px, occ_margin=cfg.sil_occ_margin,
                  huber_px=cfg.sil_huber_px, max_px=cfg.sil_max_px, w_front=cfg.sil_w_front,

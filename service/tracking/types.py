@@ -165,7 +165,8 @@ class TrackingConfig:
     # inside the object mask or behind an occluder; after ICP a few Gauss-Newton steps of point-to-plane plus this
     # term, in the stages of sil_stages (0: off). It constrains the sliding along the edge of the only faces seen
     w_sil: float = 0.0  # weight per silhouette residual (m), relative to one point-to-plane term
-    sil_stages: str = "track,refine,final"  # tracking loop, leave-one-out rounds, final pass
+    sil_stages: str = "track,final"  # tracking loop, final pass (frame 0 included), leave-one-out rounds ("refine":
+    # pushed the keyframes 2-3 mm away from the camera on strike session 511)
     sil_tol_px: float = 0.0  # a point may lie this far (px) outside the mask's outline without cost
     sil_occ_margin: float = 0.005  # a reading this much (m) in front of a point hides it (occluder, robot)
     sil_huber_px: float = 1.0  # Huber threshold (px)

@@ -141,12 +141,12 @@ def test_rim_points_keep_the_outline_and_drop_mixed_pixels():
     mixed = depth.copy()
     ring = mask & ~np.roll(mask, 1, axis=1)  # left outline column of the box
     mixed[ring] = 0.5 * (depth[ring] + 0.9)  # blends of the box and the wall behind
-    R = rim_points(mixed, mask, K, X_WC, 2, 0.01, -1.0, 0.0)
+    R = rim_points(mixed, mask, K, X_WC, 2, -1.0, 0.0)
     assert len(R) > 50
     # every rim point lies on the box surface (none of the blends)
     d_out = np.max(np.abs(R) - HALF, axis=1)
     assert np.all(d_out < 2e-3)
-    assert rim_points(depth, mask, K, X_WC, 0, 0.01, -1.0, 0.0).shape == (0, 3)
+    assert rim_points(depth, mask, K, X_WC, 0, -1.0, 0.0).shape == (0, 3)
 
 
 def test_config_validation():
@@ -154,4 +154,4 @@ def test_config_validation():
         TrackingConfig(sil_stages="track,ba")
     with pytest.raises(ValueError):
         TrackingConfig(w_sil=-1.0)
-    assert TrackingConfig(w_sil=1.0).stage_set("sil_stages") == {"track", "refine", "final"}
+    assert TrackingConfig(w_sil=1.0).stage_set("sil_stages") == {"track", "final"}
