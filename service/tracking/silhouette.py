@@ -10,21 +10,29 @@ nearest mask pixel centre, bilinear; the object's edge lies ½ px outside the ou
 and t = ``tol_px``. A point is skipped when the nearest reading d outside the mask within ``occ_px`` of its
 pixel (the object's own readings and dropouts left out) is d < z − ``occ_margin`` (occluded: the mask boundary
 there is an occlusion edge, not the object's outline), when there is no such reading (dropouts line every
-depth discontinuity), or when it projects outside the image. Residuals in metres (r z / f_x), Huber at ``huber_px``, points beyond ``max_px`` dropped
-(model noise, gross misfit), weight ``w_sil`` per point relative to one point-to-plane term. With
-X_OW ← Exp(δ) X_OW (δ = [ω, τ] in O), ∂p_W/∂δ = R_WO [[q]×, −I], and
+depth discontinuity), or when it projects outside the image. Residuals in metres (r z / f_x), Huber at
+``huber_px``, points beyond ``max_px`` dropped (model noise, gross misfit), weight ``w_sil`` per point
+relative to one point-to-plane term. With X_OW ← Exp(δ) X_OW (δ = [ω, τ] in O), ∂p_W/∂δ = R_WO [[q]×, −I], and
     ∂r/∂δ = ∇D · ∂π/∂p_C · R_CW · ∂p_W/∂δ   (π the pinhole projection).
 The term is one-sided: a model that covers only part of the object (unseen sides) is never pulled outwards.
+
+Free space (``w_front``): the outline hardly moves when the free direction points along the line of sight (a
+5 mm slide there changes a 40 px outline by 0.4 px), but the model's faces then stick out in front of the surface
+the camera sees. A model point projecting inside the mask onto an object reading d (continuous depth, bilinear
+between four valid pixels) must not lie in front of it: r = d − z − ``front_margin`` > 0 (metres, along the ray,
+the reading held fixed: ∂r/∂δ = −∂z/∂δ), Huber ``front_huber``, as in the free-space constraints of
+model-based depth trackers (Schmidt, Newcombe & Fox 2014, DART). One-sided, it pushes away from the camera when
+the margin is small against the depth noise (``front_back``: a two-sided band instead, weaker; docs/tracking.md).
 
 Rim points: the tracking points come from the mask eroded by ``erode_px`` (mixed depth at silhouettes), so
 an edge seen only as a silhouette would sit 2–3 px inside the model's true outline and leave that much slack.
 The ring between the mask and its erosion is kept for the silhouette model when its depth agrees with the
-eroded interior next to it (normalised convolution; mixed pixels between object and background fail; 2 mm + 0.5 % of the depth: with the tracking points' 1 cm + 2 %
-about 1 % of the rim points of a strike session lay 5–17 mm off the true surface, with it none beyond 4.3 mm),
-above the table clearance and away from the end effector.
+eroded interior next to it (normalised convolution; mixed pixels between object and background fail; 2 mm +
+0.5 % of the depth: with the tracking points' 1 cm + 2 % about 1 % of the rim points of a strike session
+lay 5–17 mm off the true surface, with it none beyond 4.3 mm), above the table clearance and away from the end effector.
 
 Registration (``refine``): a few Gauss–Newton iterations of the point-to-plane ICP cost (robust, the final
-correspondence radius of ``geometry.icp``, small point-to-point term) plus the silhouette term, from the pose
+correspondence radius of ``geometry.icp``, small point-to-point term) plus the two terms, from the pose
 ICP found (Lepetit & Fua 2005, silhouette-based tracking; the chamfer/distance-transform form as in
 Prisacariu & Reid 2012, PWP3D, reduced to its one-sided outside part).
 """
@@ -135,9 +143,9 @@ def silhouette_terms(Q_O: np.ndarray, X_OW: np.ndarray, view: SilhouetteView, *,
                      front_max: float = 0.02, front_back: float | None = None
                      ) -> tuple[np.ndarray, np.ndarray, float, int]:
     """Gauss–Newton pieces of the silhouette term for points Q_O (M,3) at pose X_OW: (H (6,6), g (6,), cost,
-    number of active points), in metres, weighted by ``w_sil``, for the update X_OW ← Exp(δ) X_OW. With ``w_front`` > 0 also the
-    free-space part: a point projecting inside the mask onto an object reading d (continuous depth, bilinear
-    between four valid pixels) must not lie in front of it, r = d − z − front_margin > 0 (up to front_max; Huber
+    number of active points), in metres, weighted by ``w_sil``, for the update X_OW ← Exp(δ) X_OW. With
+    ``w_front`` > 0 also the free-space part: a point projecting inside the mask onto an object reading d
+    (continuous depth, bilinear between four valid pixels) must not lie in front of it, r = d − z − front_margin > 0 (up to front_max; Huber
     at front_huber), ∂r/∂δ = −∂z/∂δ (the reading held fixed). With ``front_back`` (m) instead the two-sided band
     −front_back < r = d − z < front_max (points on the seen surface pull both ways, so the reading's noise does
     not push the object away from the camera; points hidden deeper than front_back are left out)."""

@@ -32,6 +32,9 @@ the weak directions at ``color_tau`` (docs/tracking.md for the figures).
 Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast
 on the face it rests on (``kf_still_speed``, ``_defer_keyframe``); edge points, whose normals blend two faces, are
 dropped (``crease_dist``, ``geometry.crease_points``) and ICP pairs need compatible normals (``icp_normal_cos``).
+Silhouette and free space (``w_sil``, off by default; ``service.tracking.silhouette``): after ICP in the tracking
+loop and the final pass (frame 0 included), model points must project inside the mask or behind an occluder and
+not in front of the object's depth reading; the refined pose is taken when it moved only a few millimetres.
 Frames never tracked keep tracked=False and get poses interpolated (slerp/lerp) between tracked neighbours.
 O: origin at the centroid of frame 0's object points in W, axes parallel to W (docs/conventions.md).
 """
@@ -721,7 +724,8 @@ def _sil_model(model: ObjectModel, keyframes: list[Keyframe], rims: dict[int, np
 def _sil_refine(session, i: int, P_W: np.ndarray, r: IcpResult, model: ObjectModel, sil_Q: np.ndarray,
                 cfg: TrackingConfig) -> IcpResult:
     """ICP result r of frame i refined with the silhouette term (``silhouette.refine``); r when the refined pose
-    fails the lost-track test."""
+    fails the lost-track test, moved more than sil_max_step / sil_max_step_deg from r or lost more than
+    sil_max_inlier_loss of its inlier fraction."""
     from service.tracking.silhouette import make_view, refine
 
     view = make_view(session.depth(i), session.mask(i), session.K, session.X_WC, jump=cfg.edge_jump,
@@ -730,7 +734,11 @@ def _sil_refine(session, i: int, P_W: np.ndarray, r: IcpResult, model: ObjectMod
                  inlier_dist=cfg.inlier_dist, w_sil=cfg.w_sil, tol_px=cfg.sil_tol_px, occ_margin=cfg.sil_occ_margin,
                  huber_px=cfg.sil_huber_px, max_px=cfg.sil_max_px, w_front=cfg.sil_w_front,
                  front_margin=cfg.sil_front_margin)
-    return out if _good(out, cfg) else r
+    dt, da = _pose_dist(r.X_WO, out.X_WO)
+    if not _good(out, cfg) or dt > cfg.sil_max_step or da > cfg.sil_max_step_deg \
+            or out.inlier_frac < r.inlier_frac - cfg.sil_max_inlier_loss:
+        return r  # a correction of a few millimetres is what the term is for: a larger move is a misfit
+    return out
 
 
 def interpolate_untracked(X_WO: np.ndarray, tracked: np.ndarray) -> np.ndarray:
