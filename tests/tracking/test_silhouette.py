@@ -155,3 +155,25 @@ def test_config_validation():
     with pytest.raises(ValueError):
         TrackingConfig(w_sil=-1.0)
     assert TrackingConfig(w_sil=1.0).stage_set("sil_stages") == {"track", "final"}
+
+
+def test_tracker_takes_only_small_corrections():
+    from types import SimpleNamespace
+
+    import service.tracking.tracker as tracker
+    from service.tracking.geometry import IcpResult
+
+    X_WC = _camera()
+    depth, mask = _render(np.eye(4), X_WC)
+    session = SimpleNamespace(K=K, X_WC=X_WC, depth=lambda i: depth, mask=lambda i: mask)
+    Q, N = _faces()
+    model = tracker.ObjectModel.build(0.003, [(Q, N)])
+    P_O = _faces(33)[0]
+    P_W = P_O[np.abs(P_O[:, 0]) < 0.03]
+    cfg = TrackingConfig(w_sil=1.0, sil_iters=8)
+    for dx, moved in ((0.004, True), (0.010, False)):  # 10 mm: beyond sil_max_step = 6 mm
+        X0 = make_X(np.eye(3), np.array([dx, 0.0, 0.0]))
+        r = IcpResult(X_WO=X0, inlier_frac=1.0, rmse=0.0005, n_inliers=len(P_W), nn_dist=np.zeros(len(P_W)))
+        out = tracker._sil_refine(session, 0, P_W, r, model, Q, cfg)
+        assert (abs(out.X_WO[0, 3]) < 1.5e-3) == moved
+        assert (out is r) == (not moved)
