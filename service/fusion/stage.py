@@ -47,20 +47,6 @@ def _sdf_extended(grid: SdfGrid, P: np.ndarray) -> np.ndarray:
     return sdf_query(grid, P) + out
 
 
-def depth_jump_free(depth: np.ndarray, u: np.ndarray, v: np.ndarray, jump: float) -> np.ndarray:
-    """(N,) bool: pixels (u,v) (N,) of depth (H,W) m with a reading none of whose four neighbours (clamped at the
-    border) has a reading differing by more than ``jump`` + 2 % of its depth. As ``depth_continuous`` of the
-    tracking, but a neighbour without a reading is no evidence of a discontinuity."""
-    H, W = depth.shape
-    d0 = depth[v, u]
-    tol = jump + 0.02 * d0
-    ok = d0 > 0
-    for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        nb = depth[np.clip(v + dv, 0, H - 1), np.clip(u + du, 0, W - 1)]
-        ok &= (nb <= 0) | (np.abs(nb - d0) < tol)
-    return ok
-
-
 def select_frames(tracked: np.ndarray, max_frames: int) -> np.ndarray:
     """Indices (≤ max_frames,) evenly spread over the tracked frames."""
     idx = np.nonzero(np.asarray(tracked, bool))[0]
@@ -94,8 +80,7 @@ def session_rays(
         ok = P_W[:, 2] > session.table_height + cfg.table_clearance
         smooth = np.ones(len(u), bool)
         if cfg.drop_flying:  # depth blended across a discontinuity, or a reading at an occluding contour
-            smooth = depth_continuous(depth, u, v, cfg.edge_jump) if cfg.flying_holes else \
-                depth_jump_free(depth, u, v, cfg.edge_jump)
+            smooth = depth_continuous(depth, u, v, cfg.edge_jump, holes=cfg.flying_holes)
         resid = np.nan
         if visible_sdf is not None and len(P_C):
             P_O = P_C @ X_OC[:3, :3].T + X_OC[:3, 3]

@@ -45,17 +45,19 @@ def backproject(depth: np.ndarray, K: np.ndarray, u: np.ndarray, v: np.ndarray) 
     return np.stack([x, y, d], 1)
 
 
-def depth_continuous(depth: np.ndarray, u: np.ndarray, v: np.ndarray, jump: float) -> np.ndarray:
+def depth_continuous(depth: np.ndarray, u: np.ndarray, v: np.ndarray, jump: float, holes: bool = True) -> np.ndarray:
     """(N,) bool: pixels (u,v) (N,) of depth (H,W) metres with a reading whose four neighbours (clamped at the
     border) all have one within ``jump`` + 2 % of its depth. A depth sensor blends the near and far surface at a
-    depth discontinuity (flying pixels); these fail the test."""
+    depth discontinuity (flying pixels); these fail the test. ``holes`` False: a neighbour without a reading is
+    no evidence of a discontinuity (only neighbours with a reading are compared)."""
     H, W = depth.shape
     d0 = depth[v, u]
     tol = jump + 0.02 * d0
     ok = d0 > 0
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         nb = depth[np.clip(v + dv, 0, H - 1), np.clip(u + du, 0, W - 1)]
-        ok &= (nb > 0) & (np.abs(nb - d0) < tol)
+        same = (nb > 0) & (np.abs(nb - d0) < tol)
+        ok &= same if holes else same | (nb <= 0)
     return ok
 
 
@@ -241,6 +243,14 @@ def icp(
         X_OW = _exp_se3(delta) @ X_OW
         if np.linalg.norm(delta[:3]) < 1e-5 and np.linalg.norm(delta[3:]) < 1e-5 and thr <= dist_min:
             break
+    return icp_result(X_OW, P_W, tree, Q_O, N_O, inlier_dist)
+
+
+def icp_result(X_OW: np.ndarray, P_W: np.ndarray, tree, Q_O: np.ndarray, N_O: np.ndarray, inlier_dist: float
+               ) -> IcpResult:
+    """The registration result of pose X_OW (4,4) (rotation re-orthonormalised) for points P_W (N,3) against model
+    points Q_O (M,3) with normals N_O (KD-tree ``tree``): inliers within ``inlier_dist``, their point-to-plane RMSE."""
+    X_OW = X_OW.copy()
     X_OW[:3, :3] = orthonormalize(X_OW[:3, :3])
     R, t = X_OW[:3, :3], X_OW[:3, 3]
     P = P_W @ R.T + t

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.tracking.geometry import IcpResult, _cross, _exp_se3, _pt_g, _pt_H, orthonormalize
+from service.tracking.geometry import IcpResult, _cross, _exp_se3, _pt_g, _pt_H, icp_result
 
 
 @dataclass
@@ -273,15 +273,7 @@ def refine(P_W: np.ndarray, X_WO: np.ndarray, tree, Q_O: np.ndarray, N_O: np.nda
         X_OW = _exp_se3(delta) @ X_OW
         if np.linalg.norm(delta[:3]) < 1e-5 and np.linalg.norm(delta[3:]) < 1e-5:
             break
-    X_OW[:3, :3] = orthonormalize(X_OW[:3, :3])
-    R, t = X_OW[:3, :3], X_OW[:3, 3]
-    P = P_W @ R.T + t
-    d, j = tree.query(P, distance_upper_bound=max(inlier_dist, 0.05))
-    inl = d < inlier_dist
-    r = ((P[inl] - Q_O[j[inl]]) * N_O[j[inl]]).sum(1) if inl.any() else np.zeros(0)
-    return IcpResult(X_WO=np.linalg.inv(X_OW), inlier_frac=float(inl.mean()) if len(P) else 0.0,
-                     rmse=float(np.sqrt(np.mean(r**2))) if len(r) else np.inf, n_inliers=int(inl.sum()),
-                     nn_dist=np.where(np.isfinite(d), d, np.inf))
+    return icp_result(X_OW, P_W, tree, Q_O, N_O, inlier_dist)
 
 
 def model_points(parts: list[np.ndarray], voxel: float, max_points: int) -> np.ndarray:

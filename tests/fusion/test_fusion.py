@@ -137,8 +137,10 @@ def test_session_rays_filter_table_and_outliers(scene):
 def test_depth_jump_tests_drop_blends_and_contours():
     """A flying pixel between a near plate and the far background fails both tests; its neighbours at the contour
     fail them too; a pixel next to a missing reading fails only the tracking's test (holes count as jumps)."""
-    from service.fusion.stage import depth_jump_free
     from service.tracking.geometry import depth_continuous
+
+    def depth_jump_free(D, u, v, jump):
+        return depth_continuous(D, u, v, jump, holes=False)
 
     D = np.full((9, 9), 1.0)
     D[:, :4] = 0.5  # near plate on the left, background at 1 m
