@@ -21,14 +21,16 @@ band of BundleSDF (Wen et al., CVPR 2023).
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Iterable, Sequence
 
 import numpy as np
 
 from service.sdf.types import RaySet
 
 
-def _min_filter(depth: np.ndarray, px: int) -> np.ndarray:
+def min_filter_depth(depth: np.ndarray, px: int) -> np.ndarray:
+    """(H,W) float32: ``depth`` (m, 0 = no reading) with holes set far (1000 m) and min-filtered over a
+    (2·px+1)² window, so that a point near a silhouette or a few pixels off is not taken as seen past."""
     import cv2
 
     d = np.where(depth > 0, depth, 1e3).astype(np.float32)
@@ -38,12 +40,13 @@ def _min_filter(depth: np.ndarray, px: int) -> np.ndarray:
     return d
 
 
-def _seen_in_front(P: np.ndarray, views, margin: float, px: int, count: int = 1) -> np.ndarray:
-    """(P,) bool: at least ``count`` views see the point (P,3) in front of their own reading by more than
-    ``margin`` (depth min-filtered over (2·px+1)² pixels)."""
+def seen_in_front(P: np.ndarray, views: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], margin: float,
+                  count: int = 1) -> np.ndarray:
+    """(P,) bool: at least ``count`` of ``views`` see the point (P,3) in front of their own reading by more than
+    ``margin`` — the camera looked past it, so it is empty space. ``views``: (K (3,3), X_CO (4,4) pose of the
+    points' frame in that camera, depth (H,W) already passed through :func:`min_filter_depth`)."""
     n = np.zeros(len(P), np.int32)
-    for K, X_CO, depth in views:
-        dm = _min_filter(np.asarray(depth), px)
+    for K, X_CO, dm in views:
         todo = np.nonzero(n < count)[0]
         Q = P[todo] @ X_CO[:3, :3].T + X_CO[:3, 3]
         z = Q[:, 2]
@@ -55,6 +58,10 @@ def _seen_in_front(P: np.ndarray, views, margin: float, px: int, count: int = 1)
         idx = todo[ins]
         n[idx[(zo < 1e2) & (zo > z[ins] + margin)]] += 1
     return n >= count
+
+
+def _filtered(views, px: int) -> list:
+    return [(K, X_CO, min_filter_depth(np.asarray(depth), px)) for K, X_CO, depth in views]
 
 
 def contradicted_readings(
@@ -72,7 +79,7 @@ def contradicted_readings(
     out = np.zeros(len(rays), bool)
     obj = np.nonzero(rays.depth > 0)[0]
     if len(obj) and len(views):
-        out[obj] = _seen_in_front(rays.surface_points_O, views, margin, px, min_views)  # surface_points_O: the object rays, in order
+        out[obj] = seen_in_front(rays.surface_points_O, _filtered(views, px), margin, min_views)  # surface_points_O: the object rays, in order
     return out
 
 
@@ -102,7 +109,7 @@ def evidence_band(
     o, dvec, d = rays.origins_O[obj], rays.dirs_O[obj], rays.depth[obj]
     P = o[:, None, :] + (d[:, None] + dz[None, :])[..., None] * dvec[:, None, :]  # (M,n,3)
     P = P.reshape(-1, 3)
-    hit = _seen_in_front(P, views, margin, px)
+    hit = seen_in_front(P, _filtered(views, px), margin)
     hit = hit.reshape(len(obj), n)
     first = np.where(hit.any(1), hit.argmax(1), n)  # index of the first contradicted sample, n = none
     out[obj] = np.where(first < n, np.maximum(dz[np.minimum(first, n - 1)] - 0.5 * step - margin, 0.0), np.inf)

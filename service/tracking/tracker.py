@@ -304,13 +304,9 @@ class FreeSpace:
         self.indices: list[int] = []
 
     def add(self, index: int, depth: np.ndarray, X_WO: np.ndarray) -> None:
-        import cv2
+        from service.sdf.evidence import min_filter_depth
 
-        d = np.where(depth > 0, depth, 1e3).astype(np.float32)
-        if self.px > 0:
-            k = 2 * self.px + 1
-            d = cv2.erode(d, np.ones((k, k), np.uint8))  # erosion = min filter
-        self.views.append((self.X_CW @ X_WO, d))
+        self.views.append((self.X_CW @ X_WO, min_filter_depth(depth, self.px)))
         self.indices.append(int(index))
 
     def update_pose(self, index: int, X_WO: np.ndarray) -> None:
@@ -319,19 +315,9 @@ class FreeSpace:
             self.views[j] = (self.X_CW @ X_WO, self.views[j][1])
 
     def seen_through(self, P_O: np.ndarray) -> np.ndarray:
-        out = np.zeros(len(P_O), bool)
-        K = self.K
-        for X_CO, d in self.views:
-            P = P_O @ X_CO[:3, :3].T + X_CO[:3, 3]
-            z = P[:, 2]
-            zz = np.where(z > 1e-6, z, 1.0)
-            u = np.round(K[0, 0] * P[:, 0] / zz + K[0, 2]).astype(int)
-            v = np.round(K[1, 1] * P[:, 1] / zz + K[1, 2]).astype(int)
-            ins = (z > 1e-6) & (u >= 0) & (u < d.shape[1]) & (v >= 0) & (v < d.shape[0])
-            zo = np.full(len(P_O), 0.0)
-            zo[ins] = d[v[ins], u[ins]]
-            out |= ins & (zo < 1e2) & (zo > z + self.margin)
-        return out
+        from service.sdf.evidence import seen_in_front
+
+        return seen_in_front(np.asarray(P_O, float), ((self.K, X_CO, d) for X_CO, d in self.views), self.margin)
 
 
 @dataclass
