@@ -80,7 +80,10 @@ def main() -> None:
             if not isinstance(over, dict):
                 ap.error(f"--variants {v!r}: expected NAME=JSON object of FusionConfig fields")
             sdf = over.pop("sdf", {})
-            variants[name] = dataclasses.replace(base, sdf=dataclasses.replace(base.sdf, **sdf), **over)
+            try:
+                variants[name] = dataclasses.replace(base, sdf=dataclasses.replace(base.sdf, **sdf), **over)
+            except (TypeError, ValueError) as e:
+                ap.error(f"--variants {v!r}: not a valid FusionConfig ({e})")
     ecfg = EvaluationConfig()
     rows = []
     for m in sorted(manifests("contact"), key=lambda m: ingest[m["inputs"]["session"]]["name"]):

@@ -168,11 +168,23 @@ def surface_breakdown(s, out, mG, X_GO: np.ndarray, d: np.ndarray, obs: np.ndarr
                 float(d[m & obs].sum() / tot)] for k, m in classes.items()}
 
 
+def tracking_config(overrides: dict | None):
+    """TrackingConfig() with the --cfg overrides; an "sdf" sub-dictionary sets fields of its SdfConfig."""
+    from dataclasses import replace
+
+    from service.tracking import TrackingConfig
+
+    over = dict(overrides or {})
+    if isinstance(over.get("sdf"), dict):  # --cfg '{"sdf": {"trunc_back": 0.003}}': fields of the SdfConfig
+        over["sdf"] = replace(TrackingConfig().sdf, **over["sdf"])
+    return replace(TrackingConfig(), **over)
+
+
 def run_one(kind: str, path: Path, overrides: dict | None = None, diag: bool = False) -> dict:
     import trimesh
 
     from service.session import load_session
-    from service.tracking import TrackingConfig, TrackingInputs, run
+    from service.tracking import TrackingInputs, run
     from service.transforms import X_inv, pose_errors, rotation_angle, xyzquat_to_pose
 
     s = load_session(path, "bench") if kind == "synth" else real_session(path)
@@ -185,12 +197,7 @@ def run_one(kind: str, path: Path, overrides: dict | None = None, diag: bool = F
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
     cpu0 = ru0.ru_utime + ru0.ru_stime
     t0 = time.perf_counter()
-    from dataclasses import replace
-
-    over = dict(overrides or {})
-    if isinstance(over.get("sdf"), dict):  # --cfg '{"sdf": {"trunc_back": 0.003}}': fields of the SdfConfig
-        over["sdf"] = replace(TrackingConfig().sdf, **over["sdf"])
-    out = run(TrackingInputs(s), replace(TrackingConfig(), **over), progress=progress)
+    out = run(TrackingInputs(s), tracking_config(overrides), progress=progress)
     wall = time.perf_counter() - t0
     ru = resource.getrusage(resource.RUSAGE_SELF)
     cpu = ru.ru_utime + ru.ru_stime - cpu0
@@ -291,8 +298,15 @@ def main() -> None:
     ap.add_argument("--cfg", default="{}", help='TrackingConfig overrides as JSON, e.g. \'{"ba_iters": 0}\'')
     ap.add_argument("--surface-diag", action="store_true", help="also print where the surface error sits")
     a = ap.parse_args()
+    try:
+        cfg = json.loads(a.cfg)
+        if not isinstance(cfg, dict):
+            raise ValueError("expected a JSON object of TrackingConfig fields")
+        tracking_config(cfg)
+    except (TypeError, ValueError) as e:  # json.JSONDecodeError is a ValueError
+        ap.error(f"--cfg {a.cfg!r}: not a valid TrackingConfig override ({e})")
     if a.one:
-        print(json.dumps(run_one(a.kind, a.one, json.loads(a.cfg), a.surface_diag)))
+        print(json.dumps(run_one(a.kind, a.one, cfg, a.surface_diag)))
         return
     print("command:", " ".join(shlex.quote(x) for x in [sys.executable] + sys.argv))
     rows = []
