@@ -173,6 +173,21 @@ def transform_points(X: np.ndarray, p: np.ndarray) -> np.ndarray:
     return p @ X[:3, :3].T + X[:3, 3]
 
 
+def project_to_pixels(P_C: np.ndarray, K: np.ndarray, shape: tuple[int, ...], z_min: float = 1e-6
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pinhole projection of camera-frame points (N,3) with intrinsics K (3,3): the nearest pixel column u and row
+    v (N,) int64, and (N,) bool ``inside``: in front of the camera (z > ``z_min``) and within an image of
+    ``shape`` (H, W, …). u, v of points not in front are meaningless."""
+    P_C = np.asarray(P_C, float)
+    z = P_C[:, 2]
+    front = z > z_min
+    zz = np.where(front, z, 1.0)
+    u = np.round(K[0, 0] * P_C[:, 0] / zz + K[0, 2]).astype(np.int64)
+    v = np.round(K[1, 1] * P_C[:, 1] / zz + K[1, 2]).astype(np.int64)
+    inside = front & (u >= 0) & (u < shape[1]) & (v >= 0) & (v < shape[0])
+    return u, v, inside
+
+
 def pose_to_xyzquat(X: np.ndarray) -> np.ndarray:
     """(…,4,4) -> (…,7) ``x,y,z,qw,qx,qy,qz`` (the trajectory.csv / poses.csv layout)."""
     return np.concatenate([X[..., :3, 3], mat_to_quat(X[..., :3, :3])], -1)

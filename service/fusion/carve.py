@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.sdf.types import SdfGrid
-from service.transforms import X_inv
+from service.transforms import X_inv, project_to_pixels
 
 
 def min_depth(depth: np.ndarray, radius_px: int) -> np.ndarray:
@@ -59,12 +59,7 @@ def free_space_votes(
         X_CO = X_inv(np.asarray(X, float))
         pc = P @ X_CO[:3, :3].T + X_CO[:3, 3]
         z = pc[:, 2]
-        ok = z > 1e-3
-        u = np.full(len(P), -1)
-        v = np.full(len(P), -1)
-        u[ok] = np.round(K[0, 0] * pc[ok, 0] / z[ok] + K[0, 2]).astype(int)
-        v[ok] = np.round(K[1, 1] * pc[ok, 1] / z[ok] + K[1, 2]).astype(int)
-        ok &= (u >= 0) & (u < W) & (v >= 0) & (v < H)
+        u, v, ok = project_to_pixels(pc, K, (H, W), z_min=1e-3)
         d = np.zeros(len(P))
         d[ok] = Dm[v[ok], u[ok]]
         ok &= d > 0

@@ -26,6 +26,7 @@ from typing import Iterable, Sequence
 import numpy as np
 
 from service.sdf.types import RaySet
+from service.transforms import project_to_pixels
 
 
 def min_filter_depth(depth: np.ndarray, px: int) -> np.ndarray:
@@ -50,10 +51,7 @@ def seen_in_front(P: np.ndarray, views: Iterable[tuple[np.ndarray, np.ndarray, n
         todo = np.nonzero(n < count)[0]
         Q = P[todo] @ X_CO[:3, :3].T + X_CO[:3, 3]
         z = Q[:, 2]
-        zz = np.where(z > 1e-6, z, 1.0)
-        u = np.round(K[0, 0] * Q[:, 0] / zz + K[0, 2]).astype(np.int64)
-        v = np.round(K[1, 1] * Q[:, 1] / zz + K[1, 2]).astype(np.int64)
-        ins = (z > 1e-6) & (u >= 0) & (u < dm.shape[1]) & (v >= 0) & (v < dm.shape[0])
+        u, v, ins = project_to_pixels(Q, K, dm.shape)
         zo = dm[v[ins], u[ins]]
         idx = todo[ins]
         n[idx[(zo < 1e2) & (zo > z[ins] + margin)]] += 1

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from service.transforms import X_inv, pose_errors
+from service.transforms import X_inv, pose_errors, project_to_pixels
 
 
 def _plt():
@@ -88,10 +88,7 @@ def overlay_frames(session, out, frames=None, path: Path | None = None, max_poin
         img = session.rgb(int(i)).copy()
         X_CO = X_inv(session.X_WC) @ out.X_WO[int(i)]
         P = V @ X_CO[:3, :3].T + X_CO[:3, 3]
-        ok = P[:, 2] > 1e-3
-        u = np.round(K[0, 0] * P[ok, 0] / P[ok, 2] + K[0, 2]).astype(int)
-        v = np.round(K[1, 1] * P[ok, 1] / P[ok, 2] + K[1, 2]).astype(int)
-        inb = (u >= 0) & (u < img.shape[1]) & (v >= 0) & (v < img.shape[0])
+        u, v, inb = project_to_pixels(P, K, img.shape, z_min=1e-3)
         img[v[inb], u[inb]] = (0, 255, 0) if out.tracked[int(i)] else (255, 0, 0)
         m = session.mask(int(i)).astype(np.uint8)
         cnts, _ = cv2.findContours(m, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)

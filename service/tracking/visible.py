@@ -28,7 +28,7 @@ import numpy as np
 
 from service.mesh import Mesh
 from service.sdf import RaySet, rays_from_frame
-from service.transforms import X_inv
+from service.transforms import X_inv, project_to_pixels
 
 
 def pick_frames(tracked: np.ndarray, n: int) -> np.ndarray:
@@ -182,10 +182,7 @@ def visible_points(session, X_WO: np.ndarray, frames: np.ndarray, mesh: Mesh, cf
         X_CO = X_inv(session.X_WC) @ X_WO[i]
         P = cand @ X_CO[:3, :3].T + X_CO[:3, 3]
         z = P[:, 2]
-        zz = np.where(z > 1e-6, z, 1.0)
-        u = np.round(K[0, 0] * P[:, 0] / zz + K[0, 2]).astype(int)
-        v = np.round(K[1, 1] * P[:, 1] / zz + K[1, 2]).astype(int)
-        inside = (z > 1e-6) & (u >= 0) & (u < depth.shape[1]) & (v >= 0) & (v < depth.shape[0])
+        u, v, inside = project_to_pixels(P, K, depth.shape)
         ui, vi = u[inside], v[inside]
         ok = mask[vi, ui] & (depth[vi, ui] > 0) & (np.abs(depth[vi, ui] - z[inside]) < cfg.visible_depth_tol)
         seen[np.nonzero(inside)[0][ok]] = True
