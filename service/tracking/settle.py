@@ -11,6 +11,9 @@ The frames after the landing are easy (the object lies still, many pixels), so:
    frames before them, a step turned faster than ``settle_fast_deg`` per frame (or a frame was lost while turning
    faster than half that). The gap starts at g0: walking back from the fast step while the steps turn more than
    ``settle_fall_deg`` per frame (the fall).
+   Only a track shown wrong is questioned: the model of all keyframes so far, placed with frame i's tracked pose,
+   must cover pixels where the frame sees the table or background, or lie through the table
+   (``landing.pose_consistent``); else nothing changes.
 2. Re-localisation of frame i against the model of the keyframes taken before g0 (the poses before the fall are
    good): starts are the tracked pose, the pose at which the last pre-gap step's screw brings the model to the
    table (``landing.land_on_table``), and the object resting on a face of the pre-gap model's convex hull

@@ -675,9 +675,17 @@ def _settle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.ndarr
     pre = [kf for kf in keyframes if kf.index < g0]
     if not pre:
         return None
-    M = _model_from(pre, cfg.model_voxel)
     view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
     view.add(i, session.depth(i), np.eye(4))
+    # only a track shown wrong is replaced: the model of all keyframes so far, placed with the tracked pose, covers
+    # pixels where the frame sees the table or background (or lies through the table). Against the pre-fall model
+    # alone the right pose can score worst: the settled view may show mostly surface never seen before the fall
+    cur = _model_from(keyframes, cfg.model_voxel)
+    if pose_consistent(X[i], cur.Q[:: max(1, len(cur.Q) // 4000)], session.table_height, view,
+                       cfg.landing_table_margin, cfg.landing_table_frac, cfg.landing_seen_frac):
+        landings.append(Landing(g0, i, X[i].copy(), None, np.nan, np.nan, False))
+        return None
+    M = _model_from(pre, cfg.model_voxel)
     Q = M.Q[:: max(1, len(M.Q) // 4000)]
 
     def consistent(Xc: np.ndarray) -> bool:
