@@ -234,7 +234,11 @@ class TrackingConfig:
     # the pre-fall model's resting faces (yaw steps settle_yaw_deg, the settle_icp best screened refined by ICP), the
     # landing screw and the tracked pose; a consistent pose settle_min_deg / settle_min_dist away from the tracked one
     # that scores settle_margin more replaces it, the keyframes of the fall are dropped, and the fall's frames are
-    # registered backwards from it after the loop (the better consistent fit of forward and backward per frame)
+    # registered backwards from it after the loop (the better consistent fit of forward and backward per frame).
+    # Only a track shown wrong (the model placed with it covers pixels the frame sees past) is questioned. Off: on the
+    # development topples the settled view shares almost no surface with the pre-fall model, so the re-localisation
+    # finds shape-symmetric flips, not the true pose (docs/tracking.md, "Worst frames"); identical poses where nothing
+    # is replaced (820, 830, 840, oat 830, baking_box 820, 710)
     settle: bool = False
     settle_still_frames: int = 3
     settle_still_deg: float = 1.0
