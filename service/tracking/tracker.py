@@ -22,6 +22,8 @@ mean over frame 0 and the frames at rest before the robot reaches the object (``
 Toppling landings (options, off): ``landing`` adds starts from the last step's screw continued until the model
 meets the table and rejects poses through the table or where the frame sees through the model
 (``service.tracking.landing``); ``final_neighbors`` re-registers fast frames from their neighbours' final poses.
+Fast-motion gaps (``settle``, off): a still run after a fast fall is re-localised against the model from before the
+fall, the fall's keyframes dropped and its frames registered backwards (``service.tracking.settle``).
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
 normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
 or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
@@ -332,6 +334,7 @@ class TrackResult:
     kf_log: list[dict] = field(default_factory=list)  # per keyframe candidate: index, far, new_frac, added, accepted
     n_feat: np.ndarray | None = None  # (N,2) feature correspondences used per frame: tracking, final pass
     spin: "SpinResult | None" = None  # spin closure of a body of revolution (cfg.spin_closure)
+    landings: list = field(default_factory=list)  # settle.Landing of every fast gap checked (cfg.settle)
 
 
 def track(session, cfg: TrackingConfig, progress: Progress = None) -> TrackResult:
@@ -407,6 +410,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     sil_Q = _sil_model(model, keyframes, rims, cfg) if sil_st else None
     n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
     frng = np.random.default_rng(cfg.seed + 1)  # RANSACs of the keyframe features (own stream: rng unchanged)
+    landings: list = []  # settle.Landing of every fast gap checked (cfg.settle)
     for i in range(1, N):
         o = observe(session, i, cfg, rng)
         obs.append(o)
@@ -469,6 +473,14 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             continue
         tracked[i] = True
         last.append(i)
+        if cfg.settle:  # a still object after a fast gap: re-localised against the model from before the fall
+            rel = _settle_check(session, i, o, X, tracked, keyframes, carver, landings, cfg, icp_kw)
+            if rel is not None:
+                best, model = rel
+                frac[i], rmse[i] = best.inlier_frac, best.rmse
+                last[:] = [i]
+                if sil_st:
+                    sil_Q = _sil_model(model, keyframes, rims, cfg)
         # keyframe?
         dists = [_pose_dist(kf.X_WO, X[i]) for kf in keyframes]
         far = min(max(d / cfg.kf_dist, ang / cfg.kf_angle_deg) for d, ang in dists) >= 1.0
@@ -510,6 +522,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         if i % 10 == 0:
             _report(progress, 0.6 * i / N, f"tracking frame {i}/{N}, {len(keyframes)} keyframes")
 
+    if any(ld.adopted for ld in landings):  # the fall's frames registered backwards from the settled pose
+        _settle_backward(session, obs, X, tracked, frac, rmse, model, landings, cfg, icp_kw)
     if cfg.ba_iters > 0 and len(keyframes) > 2:
         _report(progress, 0.61, f"bundle adjustment of {len(keyframes)} keyframes")
         _bundle_adjust(keyframes, cfg, rng, carver)
@@ -570,7 +584,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         _report(progress, 0.8, "spin closure")
         spin = _spin_closure(obs, X, model, cfg)
     X = interpolate_untracked(X, tracked)
-    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin)
+    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings)
 
 
 def _landing_starts(X_b: np.ndarray, X_a: np.ndarray, gap: int, model: ObjectModel, table_height: float
@@ -638,6 +652,134 @@ def _better_consistent(r: IcpResult, best: IcpResult | None, best_ok: bool, mode
     if best is None or (ok and not best_ok) or (ok == best_ok and _better(r, best)):
         return r, ok
     return best, best_ok
+
+
+def _settle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.ndarray, keyframes: list[Keyframe],
+                  carver: "FreeSpace | None", landings: list, cfg: TrackingConfig, icp_kw: dict
+                  ) -> tuple[IcpResult, ObjectModel] | None:
+    """Frame i (just tracked) ends a still run after a fast gap (``settle.find_gap``): re-localise it against the
+    model of the keyframes taken before the gap (``service.tracking.settle``). When the re-localised pose replaces
+    the tracked one, the keyframes from the gap on are dropped (``keyframes`` and ``carver`` changed in place), X[i]
+    is set and (the ICP result at the new pose, the model of the remaining keyframes) is returned; else None.
+    Every gap checked is appended to ``landings``."""
+    from service.tracking.geometry import icp_result
+    from service.tracking.landing import land_on_table, pose_consistent
+    from service.tracking.settle import (Landing, feature_agreement, find_gap, resting_pose, resting_rotations,
+                                         score, slide_search)
+
+    g0 = find_gap(X, tracked, i, cfg.settle_still_frames, cfg.settle_still_deg, cfg.settle_still_dist,
+                  cfg.settle_fast_deg, cfg.settle_fall_deg, cfg.settle_window,
+                  after=max([ld.i for ld in landings], default=0))
+    if g0 is None:
+        return None
+    pre = [kf for kf in keyframes if kf.index < g0]
+    if not pre:
+        return None
+    view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
+    view.add(i, session.depth(i), np.eye(4))
+    # only a track shown wrong is replaced: the model of all keyframes so far, placed with the tracked pose, covers
+    # pixels where the frame sees the table or background (or lies through the table). Against the pre-fall model
+    # alone the right pose can score worst: the settled view may show mostly surface never seen before the fall
+    cur = _model_from(keyframes, cfg.model_voxel)
+    if pose_consistent(X[i], cur.Q[:: max(1, len(cur.Q) // 4000)], session.table_height, view,
+                       cfg.landing_table_margin, cfg.landing_table_frac, cfg.landing_seen_frac):
+        landings.append(Landing(g0, i, X[i].copy(), None, np.nan, np.nan, False))
+        return None
+    M = _model_from(pre, cfg.model_voxel)
+    Q = M.Q[:: max(1, len(M.Q) // 4000)]
+
+    def consistent(Xc: np.ndarray) -> bool:
+        return pose_consistent(Xc, Q, session.table_height, view, cfg.landing_table_margin, cfg.landing_table_frac,
+                               cfg.landing_seen_frac)
+
+    A, B = [], []
+    for kf in pre:
+        m = _match(o.desc, kf.desc)
+        if len(m):
+            A.append(o.kp_W[m[:, 0]])
+            B.append(kf.kp_O[m[:, 1]])
+    fW = np.concatenate(A) if A else np.zeros((0, 3))
+    fO = np.concatenate(B) if B else np.zeros((0, 3))
+
+    Ps = o.P_W[:: max(1, len(o.P_W) // 300)]
+    Qs = M.Q[:: max(1, len(M.Q) // 1000)]
+
+    def sc(r: IcpResult) -> float:
+        if not (_good(r, cfg) and consistent(r.X_WO)):
+            return -np.inf
+        seen = float(np.mean(view.seen_through(Qs @ r.X_WO[:3, :3].T + r.X_WO[:3, 3])))
+        return score(r.inlier_frac, r.rmse, feature_agreement(fW, fO, r.X_WO), cfg.settle_w_feat, seen)
+
+    r_old = icp_result(X_inv(X[i]), o.P_W, M.tree, M.Q, M.N, cfg.inlier_dist)
+    s_old = sc(r_old)
+    starts = [X[i]]
+    if g0 >= 2 and tracked[g0 - 1] and tracked[g0 - 2]:
+        Xl = land_on_table(X[g0 - 2], X[g0 - 1], M.Q, session.table_height, k_max=float(i - g0 + 6))
+        if Xl is not None:
+            starts.append(Xl)
+    rest = [resting_pose(R, M.Q, o.P_W, session.table_height) for R in resting_rotations(M.Q, cfg.settle_yaw_deg)]
+    if rest:
+        placed = [slide_search(Ps, Xr, M.tree, Qs, view, half=0.16, step=0.04, fine=0.0) for Xr in rest]
+        starts += [placed[k][0] for k in np.argsort([-p[1] for p in placed])[:cfg.settle_icp]]
+    best, s_best = None, -np.inf
+    kw = {**icp_kw, "dist0": 0.03, "iters": 2 * cfg.icp_iters}
+    for Xs in starts:
+        r = icp(o.P_W, Xs, M.tree, M.Q, M.N, N_src=o.N_W, **kw)
+        Xsl, _ = slide_search(Ps, r.X_WO, M.tree, Qs, view)
+        if _pose_dist(Xsl, r.X_WO)[0] > 0.004:
+            r = icp(o.P_W, Xsl, M.tree, M.Q, M.N, N_src=o.N_W, **kw)
+        s_r = sc(r)
+        if s_r > s_best:
+            best, s_best = r, s_r
+    dt, da = _pose_dist(X[i], best.X_WO) if best is not None else (0.0, 0.0)
+    adopt = best is not None and (dt > cfg.settle_min_dist or da > cfg.settle_min_deg) \
+        and s_best > s_old + cfg.settle_margin and best.inlier_frac >= cfg.settle_min_frac
+    landings.append(Landing(g0, i, X[i].copy(), None if best is None else best.X_WO.copy(), float(s_old),
+                            float(s_best), bool(adopt)))
+    if not adopt:
+        return None
+    keep = [kf for kf in keyframes if kf.index < g0]
+    keyframes[:] = keep
+    if carver is not None:
+        idx = [k for k, j in enumerate(carver.indices) if j < g0]
+        carver.views = [carver.views[k] for k in idx]
+        carver.indices = [carver.indices[k] for k in idx]
+    X[i] = best.X_WO
+    return best, M
+
+
+def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
+                     rmse: np.ndarray, model: ObjectModel, landings: list, cfg: TrackingConfig, icp_kw: dict) -> None:
+    """The frames g0…i−1 of every adopted landing registered backwards from the settled frame i against ``model``
+    (starts: the next frame's pose and the backward constant-velocity prediction), and from their forward pose; the
+    better consistent fit wins, a frame with none is lost. Updates X, tracked, frac, rmse in place."""
+    from service.tracking.landing import pose_consistent
+
+    Q = model.Q[:: max(1, len(model.Q) // 4000)]
+    for ld in landings:
+        if not ld.adopted:
+            continue
+        for j in range(ld.i - 1, ld.g0 - 1, -1):
+            o = obs[j]
+            if len(o.P_W) < cfg.min_points:
+                tracked[j] = False
+                continue
+            view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
+            view.add(j, session.depth(j), np.eye(4))
+            starts = [X[j]]
+            if tracked[j + 1]:
+                starts.append(X[j + 1])
+                if j + 2 < len(X) and tracked[j + 2]:
+                    starts.append(X[j + 1] @ (X_inv(X[j + 2]) @ X[j + 1]))
+            best, best_ok = None, False
+            for Xs in starts:
+                r = icp(o.P_W, Xs, model.tree, model.Q, model.N, N_src=o.N_W, **{**icp_kw, "dist0": 0.02})
+                ok = _good(r, cfg) and pose_consistent(r.X_WO, Q, session.table_height, view, cfg.landing_table_margin,
+                                                        cfg.landing_table_frac, cfg.landing_seen_frac)
+                if best is None or (ok and not best_ok) or (ok == best_ok and _better(r, best)):
+                    best, best_ok = r, ok
+            X[j], frac[j], rmse[j] = best.X_WO, best.inlier_frac, best.rmse
+            tracked[j] = best_ok
 
 
 def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig) -> "SpinResult":
