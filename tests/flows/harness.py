@@ -17,13 +17,15 @@ _SERVER = None
 
 
 def use_test_prefect_home() -> None:
-    if "VYSICS_TEST_PREFECT_HOME" not in os.environ:
+    # One home (database) per test process: parallel workers (pytest-xdist) must not share a SQLite file.
+    key = "VYSICS_TEST_PREFECT_HOME_" + os.environ.get("PYTEST_XDIST_WORKER", "main")
+    if key not in os.environ:
         home = tempfile.mkdtemp(prefix="vysics-test-prefect-")
-        os.environ["VYSICS_TEST_PREFECT_HOME"] = home
+        os.environ[key] = home
         os.environ["PREFECT_HOME"] = home
     from flows.runtime import configure_prefect
 
-    configure_prefect(Path(os.environ["VYSICS_TEST_PREFECT_HOME"]).parent)
+    configure_prefect(Path(os.environ[key]).parent)
 
 
 def prefect_api() -> str:
