@@ -47,6 +47,26 @@ def so3_log(R: np.ndarray) -> np.ndarray:
     return quat_to_rotvec(mat_to_quat(R))
 
 
+def _se3_V(w: np.ndarray) -> np.ndarray:
+    """(3,3) left Jacobian of SO(3) at the rotation vector w: the translation part of Exp([w, u]) is V(w) u."""
+    th = float(np.linalg.norm(w))
+    W = skew(w)
+    if th < 1e-8:
+        return np.eye(3) + 0.5 * W
+    return np.eye(3) + (1 - np.cos(th)) / th**2 * W + (th - np.sin(th)) / th**3 * W @ W
+
+
+def se3_exp(w: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """(4,4) Exp([w, u]) on SE(3): rotation so3_exp(w), translation V(w) u (a screw motion)."""
+    return make_X(so3_exp(w), _se3_V(w) @ u)
+
+
+def se3_log(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(w, u) (3,), (3,) with X = se3_exp(w, u) (rotation vector w, translation part u = V⁻¹ t)."""
+    w = so3_log(X[:3, :3])
+    return w, np.linalg.inv(_se3_V(w)) @ X[:3, 3]
+
+
 def rotation_angle(R: np.ndarray) -> np.ndarray:
     """Geodesic angle (rad) of rotation matrices (…,3,3)."""
     c = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0

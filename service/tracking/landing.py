@@ -25,29 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.transforms import make_X, skew, so3_exp, so3_log
-
-
-def se3_log(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(w, u) (3,), (3,) with X = Exp([w, u]) (rotation vector w, translation part u = V⁻¹ t)."""
-    w = so3_log(X[:3, :3])
-    return w, _V_inv(w) @ X[:3, 3]
-
-
-def se3_exp(w: np.ndarray, u: np.ndarray) -> np.ndarray:
-    return make_X(so3_exp(w), _V(w) @ u)
-
-
-def _V(w: np.ndarray) -> np.ndarray:
-    th = float(np.linalg.norm(w))
-    W = skew(w)
-    if th < 1e-8:
-        return np.eye(3) + 0.5 * W
-    return np.eye(3) + (1 - np.cos(th)) / th**2 * W + (th - np.sin(th)) / th**3 * W @ W
-
-
-def _V_inv(w: np.ndarray) -> np.ndarray:
-    return np.linalg.inv(_V(w))
+from service.transforms import se3_exp, se3_log
 
 
 def screw_power(S: np.ndarray, k: float) -> np.ndarray:

@@ -2,9 +2,8 @@
 
 import numpy as np
 
-from service.tracking.landing import (below_table_frac, land_on_table, pose_consistent, screw_path, screw_power,
-                                      se3_exp, se3_log)
-from service.transforms import make_X, rotation_angle, so3_exp
+from service.tracking.landing import below_table_frac, land_on_table, pose_consistent, screw_path, screw_power
+from service.transforms import make_X, rotation_angle, se3_exp, se3_log, so3_exp
 
 
 def _box_surface(h, n=3000, seed=0):
