@@ -14,7 +14,7 @@ true shape (``ground_truth/``, expressed in the tracker's frame O by the mean tr
 - the learned hull's support excess over the true shape along the box's horizontal sides and its volume.
 
     python benchmarks/contact_strike.py /tmp/rp/w/data --name baking_box_strike_511 [--session SHA_PREFIX]
-        [--poses tracked|true] [--config '{"ee_timing": "closest"}'] [--stored]
+        [--poses tracked|true] [--config '{"w_pen_ee": 50}'] [--stored] [--list]
 
 ``--stored`` only analyses the stored contact outputs (end-effector points told apart from table contacts by
 ``service.fusion.stage.table_contacts``), without re-running.
@@ -137,10 +137,6 @@ def main() -> None:
 
             torch.set_num_threads(1)
             trn = make_transitions(inputs.states, inputs.ee_p_W, inputs.ee_v_W, inputs.table_height)
-            try:
-                from service.contact.fit import _prepare_ee
-            except ImportError:
-                _prepare_ee = lambda trn, *_: trn  # noqa: E731
 
             mass = float(inputs.mass)
             init = inputs.init_vertices_O
@@ -149,7 +145,6 @@ def main() -> None:
                                 learn_com=cfg.learn_com, learn_friction=cfg.learn_friction,
                                 learn_mass=cfg.learn_mass, seed=cfg.seed, geometry=cfg.geometry,
                                 n_vertices=cfg.n_vertices)
-            trn = _prepare_ee(trn, inputs, sess, cfg)
             res = train(model, trn, inputs.dt, cfg, ee_radius=inputs.ee_radius, visible_points=inputs.visible_points_O)
             ev = evaluate(model, trn, inputs.dt, cfg, ee_radius=inputs.ee_radius)
             P, N = physible_set(ev, cfg.physible_fraction, cfg.max_physible_points, cfg.seed)

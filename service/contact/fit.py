@@ -47,7 +47,7 @@ class TrainResult:
 
 
 def _weights(cfg: ContactConfig) -> LossWeights:
-    return LossWeights(cfg.w_pred, cfg.w_comp, cfg.w_diss, cfg.w_pen, cfg.w_vision)
+    return LossWeights(cfg.w_pred, cfg.w_comp, cfg.w_diss, cfg.w_pen, cfg.w_vision, cfg.w_pen_ee)
 
 
 def _solver(cfg: ContactConfig, iters: int | None = None) -> SolverSettings:

@@ -59,6 +59,7 @@ class LossWeights:
     diss: float = 5000.0
     pen: float = 0.5
     vision: float = 0.04
+    pen_ee: float | None = None  # penetration weight of the sphere contact (None: ``pen``)
 
 
 @dataclass
@@ -274,8 +275,14 @@ def contact_loss(model: ContactModel, batch: Transitions, dt: float, w: LossWeig
     L_pred = 0.5 * (resid**2).sum(-1)
     L_comp = (lam3[..., 0] * cs.phi.clamp_min(0)).sum(-1)
     L_diss = dt * (lam3[..., 0] * sn + (lam3[..., 1:] * cs.slide).sum(-1)).sum(-1)
-    L_pen = (cs.phi.clamp_max(0) ** 2).sum(-1)
-    per = w.pred * L_pred + w.comp * L_comp + w.diss * L_diss + w.pen * L_pen
+    pen_c = cs.phi.clamp_max(0) ** 2  # (B,nc)
+    L_pen = pen_c.sum(-1)
+    if w.pen_ee is None or not bool(cs.is_ee.any()):
+        L_pen_w = w.pen * L_pen
+    else:
+        wc = torch.where(cs.is_ee, torch.tensor(float(w.pen_ee), dtype=pen_c.dtype), torch.tensor(float(w.pen), dtype=pen_c.dtype))
+        L_pen_w = (pen_c * wc).sum(-1)
+    per = w.pred * L_pred + w.comp * L_comp + w.diss * L_diss + L_pen_w
     per = torch.where(valid, per, torch.zeros_like(per))
     loss = per.sum() / valid.sum().clamp_min(1)
     with torch.no_grad():

@@ -75,6 +75,11 @@ class ContactConfig:
     w_comp: float = 1.0
     w_diss: float = 5000.0
     w_pen: float = 0.5
+    # penetration weight of the end-effector sphere contact (None: w_pen). The sphere's position is measured by the
+    # robot, so a learned surface reaching into it is contradicted by data; with PLL's 0.5 the hidden side of struck
+    # objects grew 7-14 mm into the sphere. Off (None) by default: 5 and 50 help the strike sessions but cost on the
+    # synthetic pivot session (docs/contact.md, "Strike sessions")
+    w_pen_ee: float | None = None
     w_vision: float = 0.04
     w_realizable: float = 1.0  # density realizability of the inertia inside the current geometry (0 = off)
     # geometry
@@ -115,6 +120,8 @@ class ContactConfig:
         for name in ("w_pred", "w_comp", "w_diss", "w_pen", "w_vision", "w_realizable"):
             if not float(getattr(self, name)) >= 0:
                 raise ValueError(f"ContactConfig.{name} must be a number >= 0, got {getattr(self, name)!r}")
+        if self.w_pen_ee is not None and not float(self.w_pen_ee) >= 0:
+            raise ValueError(f"ContactConfig.w_pen_ee must be None or a number >= 0, got {self.w_pen_ee!r}")
 
     @classmethod
     def tosses(cls, **kw) -> "ContactConfig":
