@@ -228,6 +228,14 @@ class TrackingConfig:
     sil_max_step: float = 0.006  # a refined pose farther than this (m) or
     sil_max_step_deg: float = 2.0  # turned more than this from the ICP pose, or whose inlier fraction fell by more
     sil_max_inlier_loss: float = 0.03  # than this, is not taken (none 511 without these bounds: a 90° flip)
+    # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames) or
+    # "graph" (spin.spin_graph: a one-parameter pose graph over frame pairs, a chain link to the nearest earlier frame
+    # plus longer links only between frames whose views differ by less than spin_graph_gate_deg; links need
+    # spin_graph_votes votes). Off by default: development bottle topple 531 15.4° -> 4.7° median, mixed elsewhere
+    # and sensitive to spin_graph_votes (docs/tracking.md)
+    spin_solver: str = "chain"
+    spin_graph_gate_deg: float = 3.0
+    spin_graph_votes: int = 6
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -253,6 +261,12 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
         if self.spin_profile not in ("off", "mixed", "always"):
             raise ValueError(f"TrackingConfig.spin_profile must be 'off', 'mixed' or 'always', not {self.spin_profile!r}")
+        if self.spin_solver not in ("chain", "graph"):
+            raise ValueError(f"TrackingConfig.spin_solver must be 'chain' or 'graph', not {self.spin_solver!r}")
+        if not self.spin_graph_gate_deg >= 0:
+            raise ValueError(f"TrackingConfig.spin_graph_gate_deg must be >= 0, not {self.spin_graph_gate_deg!r}")
+        if not self.spin_graph_votes >= 1:
+            raise ValueError(f"TrackingConfig.spin_graph_votes must be >= 1, not {self.spin_graph_votes!r}")
         if not self.spin_max_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
         for name in ("sdf_band_margin", "sdf_band_px", "sdf_band_frames", "sdf_contradict_margin"):
