@@ -304,8 +304,8 @@ GRAPH_OFFSETS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
 
 
 def spin_links(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, a: np.ndarray, c: np.ndarray, *,
-               tol: float, inlier_deg: float, min_votes: int, match, chain: int = 4, gate_deg: float = 3.0
-               ) -> np.ndarray:
+               tol: float, inlier_deg: float, min_votes: int, match, chain: int = 4, gate_deg: float = 3.0,
+               n_short: int = 1) -> np.ndarray:
     """Links (L,4) rows (i, j, d_ij rad, weight) of the spin graph (comment above) from each frame's interior
     features and the uncorrected poses X_WO (N,4,4) about the axis (a, c) in O."""
     from service.transforms import rotation_angle
@@ -317,14 +317,13 @@ def spin_links(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
         kp, des = feats[i]
         if des is None or len(kp) < min_votes:
             continue
-        chained = False
+        n_ch = 0  # short links taken (the nearest earlier frames with enough votes)
         for k in [k for k in GRAPH_OFFSETS if k < i] + [i]:  # ... and frame 0
             j = i - k
             turn = float(np.degrees(rotation_angle(X_WO[i][:3, :3].T @ X_WO[j][:3, :3])))
             long_ok = turn < gate_deg
-            if chained and not long_ok:
-                continue
-            if k > chain and not long_ok:
+            short = n_ch < n_short and k <= chain
+            if not short and not long_ok:
                 continue
             kq, dq = feats[j]
             if dq is None:
@@ -335,9 +334,11 @@ def spin_links(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
             t, cnt = vote_mode(spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], X_WO[j], a, c, tol), half)
             if cnt < min_votes:
                 continue
-            if not chained and k <= chain:
-                chained = True
-            elif np.hypot(turn, np.degrees(t)) >= gate_deg:
+            if short:
+                n_ch += 1
+                out.append((i, j, t, float(cnt) / n_ch**2))  # the second nearest counts a quarter
+                continue
+            if np.hypot(turn, np.degrees(t)) >= gate_deg:
                 continue
             out.append((i, j, t, float(cnt)))
     return np.array(out, float).reshape(-1, 4)
@@ -390,7 +391,7 @@ def solve_spin_graph(n: int, links: np.ndarray, huber_deg: float = 2.0, smooth_w
 def spin_graph(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, Q: np.ndarray, N: np.ndarray, *,
                tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
                profile: str = "off", max_deg: float = 0.0, chain: int = 4, gate_deg: float = 3.0,
-               huber_deg: float = 2.0) -> SpinResult:
+               huber_deg: float = 2.0, n_short: int = 1) -> SpinResult:
     """Spin correction like ``spin_closure`` (same axis, cap, result), θ from the pose graph over frame pairs
     (``spin_links``, ``solve_spin_graph``) instead of the per-frame chain of pooled anchor votes."""
     n = len(X_WO)
@@ -399,7 +400,7 @@ def spin_graph(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
     if not is_rev:
         return SpinResult(False, lam, a, c, np.zeros(n), votes, False)
     links = spin_links(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, match=match,
-                       chain=chain, gate_deg=gate_deg)
+                       chain=chain, gate_deg=gate_deg, n_short=n_short)
     if len(links) == 0:
         return SpinResult(True, lam, a, c, np.zeros(n), votes, False)
     np.add.at(votes, links[:, 0].astype(int), links[:, 3].astype(int))

@@ -236,6 +236,7 @@ class TrackingConfig:
     spin_solver: str = "chain"
     spin_graph_gate_deg: float = 3.0
     spin_graph_votes: int = 6
+    spin_graph_short: int = 2  # short links per frame (the nearest earlier frames; the k-th weighs 1/k²)
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -265,8 +266,9 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_solver must be 'chain' or 'graph', not {self.spin_solver!r}")
         if not self.spin_graph_gate_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_graph_gate_deg must be >= 0, not {self.spin_graph_gate_deg!r}")
-        if not self.spin_graph_votes >= 1:
-            raise ValueError(f"TrackingConfig.spin_graph_votes must be >= 1, not {self.spin_graph_votes!r}")
+        for name in ("spin_graph_votes", "spin_graph_short"):
+            if not getattr(self, name) >= 1:
+                raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not self.spin_max_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
         for name in ("sdf_band_margin", "sdf_band_px", "sdf_band_frames", "sdf_contradict_margin"):
