@@ -305,7 +305,7 @@ GRAPH_OFFSETS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
 
 def spin_links(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, a: np.ndarray, c: np.ndarray, *,
                tol: float, inlier_deg: float, min_votes: int, match, chain: int = 4, gate_deg: float = 3.0,
-               n_short: int = 1) -> np.ndarray:
+               n_short: int = 1, rate_deg: float = 0.0) -> np.ndarray:
     """Links (L,4) rows (i, j, d_ij rad, weight) of the spin graph (comment above) from each frame's interior
     features and the uncorrected poses X_WO (N,4,4) about the axis (a, c) in O."""
     from service.transforms import rotation_angle
@@ -321,7 +321,7 @@ def spin_links(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
         for k in [k for k in GRAPH_OFFSETS if k < i] + [i]:  # ... and frame 0
             j = i - k
             turn = float(np.degrees(rotation_angle(X_WO[i][:3, :3].T @ X_WO[j][:3, :3])))
-            long_ok = turn < gate_deg
+            long_ok = turn < gate_deg and (rate_deg <= 0 or turn <= rate_deg * k)  # similar views, slow motion
             short = n_ch < n_short and k <= chain
             if not short and not long_ok:
                 continue
@@ -391,7 +391,7 @@ def solve_spin_graph(n: int, links: np.ndarray, huber_deg: float = 2.0, smooth_w
 def spin_graph(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, Q: np.ndarray, N: np.ndarray, *,
                tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
                profile: str = "off", max_deg: float = 0.0, chain: int = 4, gate_deg: float = 3.0,
-               huber_deg: float = 2.0, n_short: int = 1) -> SpinResult:
+               huber_deg: float = 2.0, n_short: int = 1, rate_deg: float = 0.0) -> SpinResult:
     """Spin correction like ``spin_closure`` (same axis, cap, result), θ from the pose graph over frame pairs
     (``spin_links``, ``solve_spin_graph``) instead of the per-frame chain of pooled anchor votes."""
     n = len(X_WO)
@@ -400,7 +400,7 @@ def spin_graph(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
     if not is_rev:
         return SpinResult(False, lam, a, c, np.zeros(n), votes, False)
     links = spin_links(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, match=match,
-                       chain=chain, gate_deg=gate_deg, n_short=n_short)
+                       chain=chain, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg)
     if len(links) == 0:
         return SpinResult(True, lam, a, c, np.zeros(n), votes, False)
     np.add.at(votes, links[:, 0].astype(int), links[:, 3].astype(int))

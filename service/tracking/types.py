@@ -229,12 +229,12 @@ class TrackingConfig:
     sil_max_step_deg: float = 2.0  # turned more than this from the ICP pose, or whose inlier fraction fell by more
     sil_max_inlier_loss: float = 0.03  # than this, is not taken (none 511 without these bounds: a 90° flip)
     # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames) or
-    # "graph" (spin.spin_graph: a one-parameter pose graph over frame pairs, a chain link to the nearest earlier frame
-    # plus longer links only between frames whose views differ by less than spin_graph_gate_deg; links need
-    # spin_graph_votes votes). Off by default: development bottle topple 531 15.4° -> 4.7° median, mixed elsewhere
-    # and sensitive to spin_graph_votes (docs/tracking.md)
+    # "graph" (spin.spin_graph: a one-parameter pose graph over frame pairs: spin_graph_short links to the nearest
+    # earlier frames, plus longer links only between frames whose views differ by less than spin_graph_gate_deg and
+    # by at most spin_graph_rate_deg per frame between them; links need spin_graph_votes votes) (docs/tracking.md)
     spin_solver: str = "chain"
-    spin_graph_gate_deg: float = 3.0
+    spin_graph_gate_deg: float = 10.0
+    spin_graph_rate_deg: float = 0.5  # 0: no rate test
     spin_graph_votes: int = 6
     spin_graph_short: int = 2  # short links per frame (the nearest earlier frames; the k-th weighs 1/k²)
 
@@ -264,8 +264,9 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_profile must be 'off', 'mixed' or 'always', not {self.spin_profile!r}")
         if self.spin_solver not in ("chain", "graph"):
             raise ValueError(f"TrackingConfig.spin_solver must be 'chain' or 'graph', not {self.spin_solver!r}")
-        if not self.spin_graph_gate_deg >= 0:
-            raise ValueError(f"TrackingConfig.spin_graph_gate_deg must be >= 0, not {self.spin_graph_gate_deg!r}")
+        for name in ("spin_graph_gate_deg", "spin_graph_rate_deg"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         for name in ("spin_graph_votes", "spin_graph_short"):
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
