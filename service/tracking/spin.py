@@ -291,14 +291,15 @@ def apply_spin(X_WO: np.ndarray, res: SpinResult) -> np.ndarray:
 # Per-pair measurements. For frames i, j the mode d_ij of the votes (``spin_votes`` with the uncorrected poses)
 # measures θ_i − θ_j. Measured on the development bottle topple 531 with the true poses (every true d_ij = 0):
 # consecutive frames are unbiased (±2°, no drift: the sum over the 30 frames of the fast fall is +2°), while links
-# two or more frames apart during the fall are biased by +1…+14° (the larger the view change, the larger): pooled
-# with them, the per-frame chain above follows only half of the tracker's false spin. In static stretches the long
-# links are unbiased and stop the random walk of the chain. So the graph keeps, for each frame, a chain link to the
-# nearest earlier frame within ``chain`` frames that has ``min_votes`` votes (weight = its vote count), and longer
-# links (frame 0, offsets up to 256) only when the two frames' views differ by less than ``gate_deg`` (the
-# tracked rotation between them and the measured d_ij, combined as √(turn² + d²); weight = vote count). θ (N,) minimises Σ w_ij ρ(θ_i − θ_j − d_ij) with θ_0 = 0
-# (ρ Huber, then Cauchy, at ``huber_deg``, IRLS on the normal equations; a weak 1e-3 smoothness between neighbours holds frames
-# without links).
+# three or more frames apart during the fall are biased by +1…+14° (the view changes by 20–50° between them):
+# pooled with them, the per-frame chain above follows only half of the tracker's false spin. In slow or static
+# stretches the long links are unbiased and stop the random walk of a chain. So the graph keeps, for each frame,
+# ``n_short`` links to the nearest earlier frames within ``chain`` frames that have ``min_votes`` votes (the k-th
+# weighs vote count / k²), and longer links (frame 0, offsets up to 256) only between similar views moving slowly:
+# tracked rotation between the two frames below ``gate_deg`` and at most ``rate_deg`` per frame of separation, and
+# √(turn² + d²) below ``gate_deg`` (weight = vote count). θ (N,) minimises Σ w_ij ρ(θ_i − θ_j − d_ij) with θ_0 = 0
+# (ρ Huber, then Cauchy, at ``huber_deg``, IRLS on the normal equations; a weak 1e-3 smoothness between neighbours
+# holds frames without links).
 
 GRAPH_OFFSETS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
 
