@@ -297,7 +297,7 @@ def apply_spin(X_WO: np.ndarray, res: SpinResult) -> np.ndarray:
 # ``n_short`` links to the nearest earlier frames within ``chain`` frames that have ``min_votes`` votes (the k-th
 # weighs vote count / k²), and longer links (frame 0, offsets up to 256) only between similar views moving slowly:
 # tracked rotation between the two frames below ``gate_deg`` and at most ``rate_deg`` per frame of separation, and
-# √(turn² + d²) below ``gate_deg`` (weight = vote count). θ (N,) minimises Σ w_ij ρ(θ_i − θ_j − d_ij) with θ_0 = 0
+# √(turn² + d²) below ``gate_deg``, with at least ``long_votes`` votes (weight = vote count). θ (N,) minimises Σ w_ij ρ(θ_i − θ_j − d_ij) with θ_0 = 0
 # (ρ Huber, then Cauchy, at ``huber_deg``, IRLS on the normal equations; a weak 1e-3 smoothness between neighbours
 # holds frames without links).
 
@@ -306,7 +306,7 @@ GRAPH_OFFSETS = (1, 2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128, 192, 256)
 
 def spin_links(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, a: np.ndarray, c: np.ndarray, *,
                tol: float, inlier_deg: float, min_votes: int, match, chain: int = 4, gate_deg: float = 3.0,
-               n_short: int = 1, rate_deg: float = 0.0) -> np.ndarray:
+               n_short: int = 1, rate_deg: float = 0.0, long_votes: int = 0) -> np.ndarray:
     """Links (L,4) rows (i, j, d_ij rad, weight) of the spin graph (comment above) from each frame's interior
     features and the uncorrected poses X_WO (N,4,4) about the axis (a, c) in O."""
     from service.transforms import rotation_angle
@@ -339,7 +339,7 @@ def spin_links(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
                 n_ch += 1
                 out.append((i, j, t, float(cnt) / n_ch**2))  # the second nearest counts a quarter
                 continue
-            if np.hypot(turn, np.degrees(t)) >= gate_deg:
+            if np.hypot(turn, np.degrees(t)) >= gate_deg or cnt < long_votes:
                 continue
             out.append((i, j, t, float(cnt)))
     return np.array(out, float).reshape(-1, 4)
@@ -392,7 +392,7 @@ def solve_spin_graph(n: int, links: np.ndarray, huber_deg: float = 2.0, smooth_w
 def spin_graph(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, Q: np.ndarray, N: np.ndarray, *,
                tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
                profile: str = "off", max_deg: float = 0.0, chain: int = 4, gate_deg: float = 3.0,
-               huber_deg: float = 2.0, n_short: int = 1, rate_deg: float = 0.0) -> SpinResult:
+               huber_deg: float = 2.0, n_short: int = 1, rate_deg: float = 0.0, long_votes: int = 0) -> SpinResult:
     """Spin correction like ``spin_closure`` (same axis, cap, result), θ from the pose graph over frame pairs
     (``spin_links``, ``solve_spin_graph``) instead of the per-frame chain of pooled anchor votes."""
     n = len(X_WO)
@@ -401,7 +401,7 @@ def spin_graph(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
     if not is_rev:
         return SpinResult(False, lam, a, c, np.zeros(n), votes, False)
     links = spin_links(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, match=match,
-                       chain=chain, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg)
+                       chain=chain, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg, long_votes=long_votes)
     if len(links) == 0:
         return SpinResult(True, lam, a, c, np.zeros(n), votes, False)
     np.add.at(votes, links[:, 0].astype(int), links[:, 3].astype(int))

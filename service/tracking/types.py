@@ -237,6 +237,7 @@ class TrackingConfig:
     spin_graph_rate_deg: float = 0.5  # 0: no rate test
     spin_graph_votes: int = 6
     spin_graph_short: int = 2  # short links per frame (the nearest earlier frames; the k-th weighs 1/k²)
+    spin_graph_long_votes: int = 12  # votes a longer link needs (a false one ties distant frames)
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -267,7 +268,7 @@ class TrackingConfig:
         for name in ("spin_graph_gate_deg", "spin_graph_rate_deg"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
-        for name in ("spin_graph_votes", "spin_graph_short"):
+        for name in ("spin_graph_votes", "spin_graph_short", "spin_graph_long_votes"):
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not self.spin_max_deg >= 0:
