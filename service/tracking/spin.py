@@ -34,6 +34,10 @@ degrees of freedom, which the geometry fixes, are kept.
 Textureless bodies: too few votes anywhere, θ = 0 everywhere (``SpinResult.observable`` False): the spin is
 reported as unobservable and the poses are unchanged. A correction above ``max_deg`` in any frame is not applied
 (``SpinResult.rejected``): the votes then followed something other than the surface (a lost track).
+
+Joint estimate (``spin_graph``, option): θ from a one-parameter pose graph over frame pairs instead of this chain —
+short links during motion (pair measurements across a large view change are biased), long links between similar
+views; see the comment above ``spin_links``.
 """
 
 from __future__ import annotations

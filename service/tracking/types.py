@@ -231,7 +231,8 @@ class TrackingConfig:
     # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames) or
     # "graph" (spin.spin_graph: a one-parameter pose graph over frame pairs: spin_graph_short links to the nearest
     # earlier frames, plus longer links only between frames whose views differ by less than spin_graph_gate_deg and
-    # by at most spin_graph_rate_deg per frame between them; links need spin_graph_votes votes) (docs/tracking.md)
+    # by at most spin_graph_rate_deg per frame between them; links need spin_graph_votes votes). Off: bottle topple 704
+    # 17.3° -> 6.4° median but bottle pivot 711's worst frame 7.2° -> 9.2° (docs/tracking.md, "Joint spin estimate")
     spin_solver: str = "chain"
     spin_graph_gate_deg: float = 10.0
     spin_graph_rate_deg: float = 0.5  # 0: no rate test
