@@ -789,6 +789,16 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
 
     empty = (np.zeros((0, 3)), None)
     feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
+    if cfg.spin_solver == "graph":  # joint estimate over frame pairs (spin.spin_graph)
+        from service.tracking.spin import spin_graph
+
+        res = spin_graph(feats, X, model.Q, model.N, tau=cfg.spin_tau, tol=cfg.spin_tol,
+                         inlier_deg=cfg.spin_inlier_deg, min_votes=cfg.spin_graph_votes, smooth=cfg.spin_smooth,
+                         match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg,
+                         gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short,
+                         rate_deg=cfg.spin_graph_rate_deg, long_votes=cfg.spin_graph_long_votes)
+        X[:] = apply_spin(X, res)
+        return res
     res = spin_closure(feats, X, model.Q, model.N, tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
                        min_votes=cfg.spin_min_votes, smooth=cfg.spin_smooth, match=_match, sep=cfg.spin_sep,
                        profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)

@@ -254,6 +254,18 @@ class TrackingConfig:
     settle_margin: float = 0.05
     settle_min_frac: float = 0.8  # ... and whose inlier fraction against the pre-fall model is at least this
 
+    # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames) or
+    # "graph" (spin.spin_graph: a one-parameter pose graph over frame pairs: spin_graph_short links to the nearest
+    # earlier frames, plus longer links only between frames whose views differ by less than spin_graph_gate_deg and
+    # by at most spin_graph_rate_deg per frame between them; links need spin_graph_votes votes). Off: bottle topple 704
+    # 17.3° -> 6.4° median but bottle pivot 711's worst frame 7.2° -> 9.2° (docs/tracking.md, "Joint spin estimate")
+    spin_solver: str = "chain"
+    spin_graph_gate_deg: float = 10.0
+    spin_graph_rate_deg: float = 0.5  # 0: no rate test
+    spin_graph_votes: int = 6
+    spin_graph_short: int = 2  # short links per frame (the nearest earlier frames; the k-th weighs 1/k²)
+    spin_graph_long_votes: int = 12  # votes a longer link needs (a false one ties distant frames)
+
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
             raise ValueError(f"TrackingConfig.color_mode must be 'gray' or 'chroma', not {self.color_mode!r}")
@@ -278,6 +290,14 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
         if self.spin_profile not in ("off", "mixed", "always"):
             raise ValueError(f"TrackingConfig.spin_profile must be 'off', 'mixed' or 'always', not {self.spin_profile!r}")
+        if self.spin_solver not in ("chain", "graph"):
+            raise ValueError(f"TrackingConfig.spin_solver must be 'chain' or 'graph', not {self.spin_solver!r}")
+        for name in ("spin_graph_gate_deg", "spin_graph_rate_deg"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        for name in ("spin_graph_votes", "spin_graph_short", "spin_graph_long_votes"):
+            if not getattr(self, name) >= 1:
+                raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not self.spin_max_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
         for name in ("sdf_band_margin", "sdf_band_px", "sdf_band_frames", "sdf_contradict_margin"):
