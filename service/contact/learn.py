@@ -12,6 +12,9 @@ is present, then ``n_plane`` table candidates) with gaps φ_i, Jacobian J (3n_c 
     λ* = argmin_{λ∈K} w_pred L_pred + w_comp L_comp + w_diss L_diss      (convex cone QP, no gradient)
     L_CN = w_pred L_pred(λ*) + w_comp L_comp(λ*) + w_diss L_diss(λ*) + w_pen L_pen
 
+``LossWeights.pen_ee`` (``ContactConfig.w_pen_ee``), when set, weighs the sphere contact's term of L_pen instead of
+w_pen (the sphere's position is measured by the robot; docs/contact.md, strike sessions).
+
 By the envelope theorem dL_CN/dθ = ∂L_CN/∂θ at fixed λ*, so λ* is detached. Samples with |λ*| > 1e3 or
 non-finite λ* are dropped (PLL). Vision term (§6.1): L_vis = mean_v |n̂ᵥ·(s(n̂ᵥ) − sᵥ)| with n̂ᵥ the outward
 direction from the closest point of the (detached) exported hull to sᵥ. Total: mean_batch L_CN + w_vis L_vis.
