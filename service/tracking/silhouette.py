@@ -233,13 +233,16 @@ def refine(P_W: np.ndarray, X_WO: np.ndarray, tree, Q_O: np.ndarray, N_O: np.nda
            view: SilhouetteView, *, iters: int = 5, dist: float = 0.006, inlier_dist: float = 0.008,
            w_point: float = 0.05, w_sil: float = 1.0, tol_px: float = 0.0, occ_margin: float = 0.005,
            huber_px: float = 1.0, max_px: float = 8.0, w_front: float = 0.0, front_margin: float = 0.002,
-           front_back: float | None = None) -> IcpResult:
+           front_back: float | None = None, weak_ratio: float = 0.0, weak_len: float = 0.05) -> IcpResult:
     """Point-to-plane registration of P_W (N,3) to the model (Q_O, N_O, ``tree``) plus the silhouette term of
     the model points ``sil_Q`` (M,3) in ``view``, from X_WO; returns the pose with the inlier fraction and
-    residual computed like ``geometry.icp``."""
+    residual computed like ``geometry.icp``. With ``weak_ratio`` > 0 the silhouette and free-space terms act only
+    along the weak directions of the point-to-plane Hessian at the start (``weak_projector``); X_WO unchanged when
+    there is none."""
     X_OW = np.linalg.inv(X_WO)
     huber = 0.5 * dist
-    for _ in range(iters):
+    M = None
+    for it in range(iters):
         R, t = X_OW[:3, :3], X_OW[:3, 3]
         P = P_W @ R.T + t
         d, j = tree.query(P, distance_upper_bound=dist)
@@ -253,6 +256,10 @@ def refine(P_W: np.ndarray, X_WO: np.ndarray, tree, Q_O: np.ndarray, N_O: np.nda
             w = np.where(np.abs(r) < huber, 1.0, huber / np.maximum(np.abs(r), 1e-12))
             Hm += (Jp * w[:, None]).T @ Jp
             g += (Jp * w[:, None]).T @ r
+            if weak_ratio > 0 and M is None:  # the weak directions of the point-to-plane part, at the start
+                M = weak_projector(Hm, weak_len, weak_ratio)
+                if M is None:
+                    break  # depth constrains every direction: nothing for the terms to do
             if w_point > 0:
                 Hm += w_point * _pt_H(p)
                 g += w_point * _pt_g(p, p - q)
@@ -261,6 +268,10 @@ def refine(P_W: np.ndarray, X_WO: np.ndarray, tree, Q_O: np.ndarray, N_O: np.nda
                                          front_margin=front_margin, front_back=front_back)
         if n < 6 and ns == 0:
             break
+        if weak_ratio > 0:
+            if M is None:
+                break  # too few depth pairs to tell the weak directions
+            Hs, gs = M.T @ Hs @ M, M.T @ gs
         Hm += Hs
         g += gs
         Hm += 1e-9 * np.eye(6) * max(n, 1)
@@ -291,3 +302,43 @@ def model_points(parts: list[np.ndarray], voxel: float, max_points: int) -> np.n
     if len(Q) > max_points:
         Q = Q[np.linspace(0, len(Q) - 1, max_points).round().astype(int)]
     return Q
+
+
+def weak_projector(H: np.ndarray, length: float, ratio: float) -> np.ndarray | None:
+    """(6,6) map M such that a term with Jacobian J (in δ = [ω, τ]) restricted to the weak directions of the
+    point-to-plane Hessian H (6,6) has Jacobian J M: with S = diag(L, L, L, 1, 1, 1) (rotation as the motion of a
+    point at ``length`` L), the eigenvectors V_w of S⁻¹ H S⁻¹ whose eigenvalues are below ``ratio`` × the largest
+    span the weak subspace and M = S⁻¹ V_w V_wᵀ S. None when no direction is weak (or H is zero)."""
+    s = np.array([length] * 3 + [1.0] * 3)
+    Hs = H / np.outer(s, s)
+    lam, V = np.linalg.eigh(0.5 * (Hs + Hs.T))
+    if not lam[-1] > 0:
+        return None
+    Vw = V[:, lam < ratio * lam[-1]]
+    if Vw.shape[1] == 0:
+        return None
+    return (Vw @ Vw.T) * (s[None, :] / s[:, None])  # S⁻¹ V_w V_wᵀ S
+
+
+def front_violations(Q_O: np.ndarray, X_OW: np.ndarray, view: SilhouetteView, margin: float
+                     ) -> tuple[int, int]:
+    """(number of points of Q_O (M,3) at pose X_OW that project inside the mask onto a continuous object reading
+    d (four valid neighbours) and lie in front of it by more than ``margin`` (m), number projecting onto such a
+    reading): evidence that the model sticks out into space the frame sees empty."""
+    X_CO = view.X_CW @ np.linalg.inv(X_OW)
+    P = Q_O @ X_CO[:3, :3].T + X_CO[:3, 3]
+    z = P[:, 2]
+    K = view.K
+    Fh, Fw = view.front.shape
+    zz = np.where(z > 1e-6, z, 1.0)
+    u = K[0, 0] * P[:, 0] / zz + K[0, 2] - view.u0
+    v = K[1, 1] * P[:, 1] / zz + K[1, 2] - view.v0
+    ins = (z > 1e-6) & (u >= 0) & (u <= Fw - 1) & (v >= 0) & (v <= Fh - 1)
+    u, v, z = u[ins], v[ins], z[ins]
+    u0 = np.clip(np.floor(u).astype(int), 0, Fw - 2)
+    v0 = np.clip(np.floor(v).astype(int), 0, Fh - 2)
+    f = [view.front[v0, u0], view.front[v0, u0 + 1], view.front[v0 + 1, u0], view.front[v0 + 1, u0 + 1]]
+    ok = (f[0] > 0) & (f[1] > 0) & (f[2] > 0) & (f[3] > 0)
+    a, b = np.clip(u - u0, 0.0, 1.0), np.clip(v - v0, 0.0, 1.0)
+    d = (1 - a) * (1 - b) * f[0] + a * (1 - b) * f[1] + (1 - a) * b * f[2] + a * b * f[3]
+    return int(np.sum(ok & (d - z > margin))), int(np.sum(ok))

@@ -253,6 +253,14 @@ class TrackingConfig:
     settle_min_dist: float = 0.01
     settle_margin: float = 0.05
     settle_min_frac: float = 0.8  # ... and whose inlier fraction against the pre-fall model is at least this
+    # safeguards of the silhouette term (w_sil > 0; 0: not used): it acts only along the directions the depth leaves
+    # weak (eigenvalues of the point-to-plane Hessian, rotation scaled by sil_weak_len, below sil_weak_ratio x the
+    # largest; none: the ICP pose is kept), and only in frames where at least sil_gate_frac of the model points
+    # projecting onto object readings lie more than sil_gate_margin (m) in front of them (free space violated)
+    sil_weak_ratio: float = 0.0
+    sil_weak_len: float = 0.05
+    sil_gate_frac: float = 0.0
+    sil_gate_margin: float = 0.004
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -294,6 +302,11 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not 0 < self.settle_yaw_deg <= 180:
             raise ValueError(f"TrackingConfig.settle_yaw_deg must be in (0, 180], not {self.settle_yaw_deg!r}")
+        for name in ("sil_weak_ratio", "sil_gate_frac", "sil_gate_margin"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        if not self.sil_weak_len > 0:
+            raise ValueError(f"TrackingConfig.sil_weak_len must be > 0, not {self.sil_weak_len!r}")
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
 
