@@ -63,11 +63,13 @@ class SilhouetteView:
 
 
 def make_view(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, X_WC: np.ndarray, occ_px: int = 2,
-              jump: float = 0.01, pad: int | None = 16) -> SilhouetteView:
+              jump: float = 0.01, pad: int | None = 16, front_smooth_px: int = 0) -> SilhouetteView:
     """Distance transform of the complement of ``mask`` (H,W) bool, its gradient, and the nearest depth reading
     outside the mask within ``occ_px`` pixels (min filter; readings of the object itself and dropouts, which
     line every depth discontinuity, left out). With ``pad`` the arrays cover only the mask's bounding box grown by
-    pad pixels (points farther outside lie beyond ``max_px`` of the term and count as outside the image)."""
+    pad pixels (points farther outside lie beyond ``max_px`` of the term and count as outside the image). With
+    ``front_smooth_px`` k > 0 the free-space reading is the mean of the continuous object readings in the
+    (2k+1)² window (at least half of it valid; ``smooth_front``)."""
     import cv2
 
     u0 = v0 = 0
@@ -93,6 +95,8 @@ def make_view(depth: np.ndarray, mask: np.ndarray, K: np.ndarray, X_WC: np.ndarr
         nb = np.roll(d, sh, axis=ax)
         ok &= (nb > 0) & (np.abs(nb - d) < tol)
     front = np.where(ok, d, 0.0).astype(np.float32)
+    if front_smooth_px > 0:
+        front = smooth_front(front, front_smooth_px)
     return SilhouetteView(np.asarray(K, float), np.linalg.inv(X_WC), D, gu, gv, occ, front, int(u0), int(v0))
 
 
@@ -342,3 +346,48 @@ def front_violations(Q_O: np.ndarray, X_OW: np.ndarray, view: SilhouetteView, ma
     a, b = np.clip(u - u0, 0.0, 1.0), np.clip(v - v0, 0.0, 1.0)
     d = (1 - a) * (1 - b) * f[0] + a * (1 - b) * f[1] + (1 - a) * b * f[2] + a * b * f[3]
     return int(np.sum(ok & (d - z > margin))), int(np.sum(ok))
+
+
+def smooth_front(front: np.ndarray, k: int) -> np.ndarray:
+    """(H,W) float32: the mean of the positive readings of ``front`` (0: none) in the (2k+1)² window around each
+    positive pixel, 0 where fewer than half of the window is positive. The per-pixel depth noise (σ = 0.8 + 1.8 z²
+    mm of the lab, 1.6–2 mm at the sessions' 0.6–0.8 m, mostly independent per pixel) would otherwise put 10–20 %
+    of the points of a correctly placed model more than 2 mm in front of their reading, and the one-sided term pushes
+    the object away from the camera to clear them; averaging over (2k+1)² pixels divides the independent part by
+    2k+1 (a plane is unchanged)."""
+    import cv2
+
+    valid = (front > 0).astype(np.float32)
+    box = (2 * k + 1, 2 * k + 1)
+    s = cv2.boxFilter(front.astype(np.float32), -1, box, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    c = cv2.boxFilter(valid, -1, box, normalize=False, borderType=cv2.BORDER_CONSTANT)
+    ok = (front > 0) & (c >= 0.5 * (2 * k + 1) ** 2)
+    return np.where(ok, s / np.maximum(c, 1.0), 0.0).astype(np.float32)
+
+
+def smooth_points(Q: np.ndarray, radius: float, min_nb: int = 6) -> np.ndarray:
+    """(M,3) points Q moved onto the least-squares plane of their neighbours within ``radius`` (one moving
+    least-squares step: q ← q − ((q − μ)·n) n, μ the neighbours' mean, n the normal of their covariance); points with
+    fewer than ``min_nb`` neighbours unchanged. The model is the union of keyframe depth points (3 mm voxel centroids
+    of few readings each), so its points scatter about the surface as much as one reading; measured against a
+    reading, 20–30 % of them lie more than 2 mm in front of it at the true pose, and the one-sided free-space term
+    pushes the object away from the camera to clear them."""
+    from scipy.spatial import cKDTree
+
+    if len(Q) < min_nb:
+        return Q
+    pairs = cKDTree(Q).query_pairs(radius, output_type="ndarray")
+    M = len(Q)
+    a = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(M)])  # each point is its own neighbour too
+    b = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(M)])
+    cnt = np.bincount(a, minlength=M).astype(float)
+    mu = np.stack([np.bincount(a, Q[b, k], M) for k in range(3)], 1) / cnt[:, None]
+    D = Q[b] - mu[a]
+    C = np.zeros((M, 3, 3))
+    for k in range(3):
+        for l in range(k, 3):
+            C[:, k, l] = C[:, l, k] = np.bincount(a, D[:, k] * D[:, l], M)
+    n = np.linalg.eigh(C)[1][:, :, 0]
+    out = Q - (((Q - mu) * n).sum(1))[:, None] * n
+    ok = cnt >= min_nb
+    return np.where(ok[:, None], out, Q)

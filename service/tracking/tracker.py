@@ -954,7 +954,12 @@ def _sil_model(model: ObjectModel, keyframes: list[Keyframe], rims: dict[int, np
         if R is not None and len(R):
             X_OW = X_inv(kf.X_WO)
             parts.append(R @ X_OW[:3, :3].T + X_OW[:3, 3])
-    return model_points(parts, cfg.model_voxel, cfg.sil_points)
+    Q = model_points(parts, cfg.model_voxel, cfg.sil_points)
+    if cfg.sil_model_smooth > 0:  # scattered like one reading, the points of a correct model lie in front of it
+        from service.tracking.silhouette import smooth_points
+
+        Q = smooth_points(Q, cfg.sil_model_smooth)
+    return Q
 
 
 def _sil_refine(session, i: int, P_W: np.ndarray, r: IcpResult, model: ObjectModel, sil_Q: np.ndarray,
@@ -965,7 +970,7 @@ def _sil_refine(session, i: int, P_W: np.ndarray, r: IcpResult, model: ObjectMod
     from service.tracking.silhouette import make_view, refine
 
     view = make_view(session.depth(i), session.mask(i), session.K, session.X_WC, jump=cfg.edge_jump,
-                     pad=int(np.ceil(cfg.sil_max_px)) + 4)
+                     pad=int(np.ceil(cfg.sil_max_px)) + 4, front_smooth_px=cfg.sil_front_smooth_px)
     if not _sil_needed(sil_Q, r, view, cfg):
         return r
     out = refine(P_W, r.X_WO, model.tree, model.Q, model.N, sil_Q, view, iters=cfg.sil_iters, dist=cfg.icp_dist_min,

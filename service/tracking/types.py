@@ -261,6 +261,8 @@ class TrackingConfig:
     sil_weak_len: float = 0.05
     sil_gate_frac: float = 0.0
     sil_gate_margin: float = 0.004
+    sil_front_smooth_px: int = 0  # free-space reading averaged over (2k+1)^2 continuous pixels (0: the pixel's own)
+    sil_model_smooth: float = 0.0  # the term's model points moved onto the plane of their neighbours within this (m)
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -302,7 +304,8 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not 0 < self.settle_yaw_deg <= 180:
             raise ValueError(f"TrackingConfig.settle_yaw_deg must be in (0, 180], not {self.settle_yaw_deg!r}")
-        for name in ("sil_weak_ratio", "sil_gate_frac", "sil_gate_margin"):
+        for name in ("sil_weak_ratio", "sil_gate_frac", "sil_gate_margin", "sil_front_smooth_px",
+                     "sil_model_smooth"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not self.sil_weak_len > 0:

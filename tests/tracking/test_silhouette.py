@@ -232,3 +232,23 @@ def test_weak_directions_only_and_free_space_gate():
     assert np.linalg.norm(tracker._sil_refine(session, 0, P_W, r, model, Q, cfg).X_WO[:3, 3]) < 1.5e-3
     with pytest.raises(ValueError):
         TrackingConfig(sil_weak_len=0.0)
+
+
+def test_smoothing_of_model_points_and_readings():
+    from service.tracking.silhouette import smooth_front, smooth_points
+
+    rng = np.random.default_rng(3)
+    Q = np.c_[rng.uniform(-0.05, 0.05, (3000, 2)), rng.normal(0.0, 0.0015, 3000)]  # a noisy plane z = 0
+    S = smooth_points(Q, 0.009)
+    assert S[:, 2].std() < 0.4 * Q[:, 2].std()
+    assert np.median(np.abs(S[:, :2] - Q[:, :2])) < 2e-4  # along the (nearly vertical) normal
+    far = np.array([[1.0, 1.0, 1.0]])
+    assert np.allclose(smooth_points(np.concatenate([Q, far]), 0.009)[-1], far)  # no neighbours: unchanged
+    v, u = np.mgrid[0:40, 0:50]
+    plane = (0.6 + 0.001 * u + 0.0005 * v).astype(np.float32)
+    noisy = plane + rng.normal(0.0, 0.002, plane.shape).astype(np.float32)
+    noisy[:, :5] = 0.0  # no reading
+    f = smooth_front(noisy, 1)
+    inner = (slice(2, -2), slice(7, -2))
+    assert np.all(f[:, :5] == 0)
+    assert np.abs(f[inner] - plane[inner]).std() < 0.5 * np.abs(noisy[inner] - plane[inner]).std()
