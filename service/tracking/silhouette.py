@@ -24,6 +24,14 @@ the reading held fixed: ∂r/∂δ = −∂z/∂δ), Huber ``front_huber``, as i
 model-based depth trackers (Schmidt, Newcombe & Fox 2014, DART). One-sided, it pushes away from the camera when
 the margin is small against the depth noise (``front_back``: a two-sided band instead, weaker; docs/tracking.md).
 
+Noise (``smooth_points``, ``smooth_front``, ``weak_projector``, ``front_violations``): the model is the union of
+keyframe depth points (3 mm voxel centroids of few readings), scattered about the surface like one reading (lab
+σ = 0.8 + 1.8 z² mm); against the frame's own noisy reading 20–30 % of the points of a model built with the *true*
+poses lie more than 2 mm in front of it, so the one-sided term's minimum lies ~1 mm farther from the camera than the
+truth. Options: model points moved onto the plane of their neighbours and the reading averaged over 3×3 pixels;
+the terms restricted to the weak directions of the point-to-plane Hessian; a per-frame gate on the fraction of
+points in front of the reading (docs/tracking.md).
+
 Rim points: the tracking points come from the mask eroded by ``erode_px`` (mixed depth at silhouettes), so
 an edge seen only as a silhouette would sit 2–3 px inside the model's true outline and leave that much slack.
 The ring between the mask and its erosion is kept for the silhouette model when its depth agrees with the
