@@ -964,7 +964,12 @@ def _sil_model(model: ObjectModel, keyframes: list[Keyframe], rims: dict[int, np
         if R is not None and len(R):
             X_OW = X_inv(kf.X_WO)
             parts.append(R @ X_OW[:3, :3].T + X_OW[:3, 3])
-    return model_points(parts, cfg.model_voxel, cfg.sil_points)
+    Q = model_points(parts, cfg.model_voxel, cfg.sil_points)
+    if cfg.sil_model_smooth > 0:  # scattered like one reading, the points of a correct model lie in front of it
+        from service.tracking.silhouette import smooth_points
+
+        Q = smooth_points(Q, cfg.sil_model_smooth)
+    return Q
 
 
 def _sil_refine(session, i: int, P_W: np.ndarray, r: IcpResult, model: ObjectModel, sil_Q: np.ndarray,
@@ -975,16 +980,29 @@ def _sil_refine(session, i: int, P_W: np.ndarray, r: IcpResult, model: ObjectMod
     from service.tracking.silhouette import make_view, refine
 
     view = make_view(session.depth(i), session.mask(i), session.K, session.X_WC, jump=cfg.edge_jump,
-                     pad=int(np.ceil(cfg.sil_max_px)) + 4)
+                     pad=int(np.ceil(cfg.sil_max_px)) + 4, front_smooth_px=cfg.sil_front_smooth_px)
+    if not _sil_needed(sil_Q, r, view, cfg):
+        return r
     out = refine(P_W, r.X_WO, model.tree, model.Q, model.N, sil_Q, view, iters=cfg.sil_iters, dist=cfg.icp_dist_min,
                  inlier_dist=cfg.inlier_dist, w_sil=cfg.w_sil, tol_px=cfg.sil_tol_px, occ_margin=cfg.sil_occ_margin,
                  huber_px=cfg.sil_huber_px, max_px=cfg.sil_max_px, w_front=cfg.sil_w_front,
-                 front_margin=cfg.sil_front_margin)
+                 front_margin=cfg.sil_front_margin, weak_ratio=cfg.sil_weak_ratio, weak_len=cfg.sil_weak_len)
     dt, da = _pose_dist(r.X_WO, out.X_WO)
     if not _good(out, cfg) or dt > cfg.sil_max_step or da > cfg.sil_max_step_deg \
             or out.inlier_frac < r.inlier_frac - cfg.sil_max_inlier_loss:
         return r  # a correction of a few millimetres is what the term is for: a larger move is a misfit
     return out
+
+
+def _sil_needed(sil_Q: np.ndarray, r: IcpResult, view, cfg: TrackingConfig) -> bool:
+    """Whether the silhouette refinement runs on a frame (sil_gate_frac > 0): at least that fraction of the model
+    points projecting onto the frame's object readings lie more than sil_gate_margin in front of them."""
+    if cfg.sil_gate_frac <= 0:
+        return True
+    from service.tracking.silhouette import front_violations
+
+    n_v, n = front_violations(sil_Q, X_inv(r.X_WO), view, cfg.sil_gate_margin)
+    return n > 0 and n_v >= cfg.sil_gate_frac * n
 
 
 def interpolate_untracked(X_WO: np.ndarray, tracked: np.ndarray) -> np.ndarray:

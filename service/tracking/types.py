@@ -253,6 +253,18 @@ class TrackingConfig:
     settle_min_dist: float = 0.01
     settle_margin: float = 0.05
     settle_min_frac: float = 0.8  # ... and whose inlier fraction against the pre-fall model is at least this
+    # safeguards of the silhouette term (w_sil > 0; 0: not used; all off, docs/tracking.md "Why the free-space term
+    # hurts"): it acts only along the directions the depth leaves weak (eigenvalues of the point-to-plane Hessian,
+    # rotation scaled by sil_weak_len, below sil_weak_ratio x the largest; none: the ICP pose is kept), and only in
+    # frames where at least sil_gate_frac of the model points projecting onto object readings lie more than
+    # sil_gate_margin (m) in front of them (free space violated)
+    sil_weak_ratio: float = 0.0
+    sil_weak_len: float = 0.05
+    sil_gate_frac: float = 0.0
+    sil_gate_margin: float = 0.004
+    sil_front_smooth_px: int = 0  # free-space reading averaged over (2k+1)^2 continuous pixels (0: the pixel's own)
+    sil_model_smooth: float = 0.0  # the term's model points moved onto the plane of their neighbours within this (m)
+    # (model points scatter like one reading: 20-30 % of a correctly placed model lay > 2 mm in front of the reading)
 
     # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames) or
     # "graph" (spin.spin_graph: a one-parameter pose graph over frame pairs: spin_graph_short links to the nearest
@@ -314,6 +326,12 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not 0 < self.settle_yaw_deg <= 180:
             raise ValueError(f"TrackingConfig.settle_yaw_deg must be in (0, 180], not {self.settle_yaw_deg!r}")
+        for name in ("sil_weak_ratio", "sil_gate_frac", "sil_gate_margin", "sil_front_smooth_px",
+                     "sil_model_smooth"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        if not self.sil_weak_len > 0:
+            raise ValueError(f"TrackingConfig.sil_weak_len must be > 0, not {self.sil_weak_len!r}")
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
 

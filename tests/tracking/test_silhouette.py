@@ -177,3 +177,78 @@ def test_tracker_takes_only_small_corrections():
         out = tracker._sil_refine(session, 0, P_W, r, model, Q, cfg)
         assert (abs(out.X_WO[0, 3]) < 1.5e-3) == moved
         assert (out is r) == (not moved)
+
+
+def test_weak_directions_only_and_free_space_gate():
+    from types import SimpleNamespace
+
+    import service.tracking.tracker as tracker
+    from service.tracking.geometry import IcpResult
+    from service.tracking.silhouette import front_violations, weak_projector
+
+    X_WC = _camera((0.35, -0.12, 0.25))  # looks along the top/front edge from the +x side
+    depth, mask = _render(np.eye(4), X_WC)
+    view = make_view(depth, mask, K, X_WC)
+    Q, N = _faces()
+    tree = cKDTree(Q)
+    P_O = _faces(33)[0]
+    P_W = P_O[np.abs(P_O[:, 0]) < 0.03]
+    start = make_X(np.eye(3), np.array([0.006, 0.0, 0.0]))
+    # two faces seen: the slide along x is weak, the free-space term restricted to it still removes it
+    r1 = refine(P_W, start, tree, Q, N, Q, view, w_sil=1.0, w_front=1.0, iters=8, weak_ratio=0.05)
+    assert np.linalg.norm(r1.X_WO[:3, 3]) < 1.5e-3
+    # the gate: at the slid pose the model sticks out in front of the end face, at the true pose it does not
+    nv, n = front_violations(Q, X_inv(start), view, 0.003)
+    assert n > 100 and nv > 0.04 * n  # the ends of the top and front faces (5 %)
+    nv0, n0 = front_violations(Q, np.eye(4), view, 0.003)
+    assert n0 > 100 and nv0 < 0.01 * n0
+    # the +x end face seen as well: depth fixes every direction, the terms may not move the pose
+    a = np.linspace(-1, 1, 33)
+    A, B = np.meshgrid(a, a)
+    end = np.c_[np.full(A.size, HALF[0]), A.ravel() * HALF[1], B.ravel() * HALF[2]]
+    Q3 = np.concatenate([Q, end])
+    N3 = np.concatenate([N, np.tile([1.0, 0, 0], (len(end), 1))])
+    P3 = np.concatenate([P_W, end])
+    H = np.zeros((6, 6))
+    from service.tracking.geometry import _cross
+
+    J = np.hstack([_cross(P3, N3[cKDTree(Q3).query(P3)[1]]), N3[cKDTree(Q3).query(P3)[1]]])
+    H = J.T @ J
+    assert weak_projector(H, 0.05, 0.05) is None
+    Jtwo = np.hstack([_cross(P_W, N[tree.query(P_W)[1]]), N[tree.query(P_W)[1]]])
+    M = weak_projector(Jtwo.T @ Jtwo, 0.05, 0.05)
+    assert M is not None and abs(M[3, 3] - 1.0) < 0.05  # x translation kept
+    off = make_X(np.eye(3), np.array([0.0, 0.0, 0.004]))  # a 4 mm error depth sees
+    r3 = refine(P3, off, cKDTree(Q3), Q3, N3, Q3, view, w_sil=1.0, w_front=1.0, iters=8, weak_ratio=0.05)
+    assert np.allclose(r3.X_WO, off)
+    # tracker: with the gate on, a frame without free-space violations keeps its ICP pose
+    session = SimpleNamespace(K=K, X_WC=X_WC, depth=lambda i: depth, mask=lambda i: mask)
+    model = tracker.ObjectModel.build(0.003, [(Q, N)])
+    cfg = TrackingConfig(w_sil=1.0, sil_iters=8, sil_gate_frac=0.03, sil_gate_margin=0.003)
+    X0 = make_X(np.eye(3), np.array([0.0005, 0.0, 0.0]))
+    r = IcpResult(X_WO=X0, inlier_frac=1.0, rmse=0.0005, n_inliers=len(P_W), nn_dist=np.zeros(len(P_W)))
+    assert tracker._sil_refine(session, 0, P_W, r, model, Q, cfg) is r
+    r = IcpResult(X_WO=start, inlier_frac=1.0, rmse=0.0005, n_inliers=len(P_W), nn_dist=np.zeros(len(P_W)))
+    assert np.linalg.norm(tracker._sil_refine(session, 0, P_W, r, model, Q, cfg).X_WO[:3, 3]) < 1.5e-3
+    with pytest.raises(ValueError):
+        TrackingConfig(sil_weak_len=0.0)
+
+
+def test_smoothing_of_model_points_and_readings():
+    from service.tracking.silhouette import smooth_front, smooth_points
+
+    rng = np.random.default_rng(3)
+    Q = np.c_[rng.uniform(-0.05, 0.05, (3000, 2)), rng.normal(0.0, 0.0015, 3000)]  # a noisy plane z = 0
+    S = smooth_points(Q, 0.009)
+    assert S[:, 2].std() < 0.4 * Q[:, 2].std()
+    assert np.median(np.abs(S[:, :2] - Q[:, :2])) < 2e-4  # along the (nearly vertical) normal
+    far = np.array([[1.0, 1.0, 1.0]])
+    assert np.allclose(smooth_points(np.concatenate([Q, far]), 0.009)[-1], far)  # no neighbours: unchanged
+    v, u = np.mgrid[0:40, 0:50]
+    plane = (0.6 + 0.001 * u + 0.0005 * v).astype(np.float32)
+    noisy = plane + rng.normal(0.0, 0.002, plane.shape).astype(np.float32)
+    noisy[:, :5] = 0.0  # no reading
+    f = smooth_front(noisy, 1)
+    inner = (slice(2, -2), slice(7, -2))
+    assert np.all(f[:, :5] == 0)
+    assert np.abs(f[inner] - plane[inner]).std() < 0.5 * np.abs(noisy[inner] - plane[inner]).std()
