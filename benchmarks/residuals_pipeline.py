@@ -9,7 +9,7 @@ error of the true effect's candidate on its own held-out frames before -> after.
 
     python benchmarks/residuals_pipeline.py [--preset small] [--frames N] [--seed 21] [--object milk_carton]
         [--interaction push|strike] [--mu 0.15] [--residual-config JSON] [--cases none clock_offset ...]
-        [--fusion-config JSON] [--work DIR] [--diagnose [--loops MODEL@POSES ...]]
+        [--contact-config JSON] [--fusion-config JSON] [--work DIR] [--diagnose [--loops MODEL@POSES ...]]
 
 ``--interaction strike``: impulsive pushes, the object slides free (baking box by default, declared table
 friction 0.15, the hidden values of ``benchmarks/residuals.py strike``; cases none, friction_object_table,
@@ -338,6 +338,9 @@ def main() -> None:
     ap.add_argument("--pipeline-preset", default="default")
     ap.add_argument("--residual-config", default=None,
                     help='JSON overrides of the residual stage config, e.g. \'{"max_base_error_rel_learned": 0.08}\'')
+    ap.add_argument("--contact-config", default=None,
+                    help='JSON overrides of the contact stage config, e.g. \'{"w_pen_ee": 50}\' (stored tracking '
+                         'outputs are reused; contact and what follows are recomputed)')
     ap.add_argument("--fusion-config", default=None,
                     help='JSON overrides of the fusion stage config, e.g. \'{"sdf": {"trunc_back": 0.003}}\' (stored '
                          'tracking and contact outputs are reused; fusion and what follows are recomputed)')
@@ -361,16 +364,25 @@ def main() -> None:
     a.object = a.object or ("baking_box" if strike else "milk_carton")
     a.cases = a.cases or list(cases)
     mu = a.mu if a.mu is not None else (STRIKE_MU if strike else None)
-    config = {}
+    config, flags = {}, {}
     for stage, text, flag in (("residuals", a.residual_config, "--residual-config"),
+                              ("contact", a.contact_config, "--contact-config"),
                               ("fusion", a.fusion_config, "--fusion-config")):
         if text:
+            flags[stage] = flag
             try:
                 config[stage] = json.loads(text)
             except json.JSONDecodeError as e:
                 ap.error(f"{flag}: not JSON ({e})")
             if not isinstance(config[stage], dict):
                 ap.error(f"{flag}: expected a JSON object of {stage} config fields")
+    if config:
+        from service.config import PipelineConfig
+
+        try:  # an unknown field or a bad value is refused before any session is made
+            PipelineConfig.from_dict(config)
+        except (ValueError, TypeError) as e:
+            ap.error(f"{' / '.join(flags.values())}: {e}")
     config = config or None
     work = Path(a.work)
     data_dir = work / "data"
@@ -381,6 +393,7 @@ def main() -> None:
 
     frames = f" --frames {a.frames}" if a.frames else ""
     extra = ((f" --mu {a.mu}" if a.mu is not None else "") + (f" --residual-config '{a.residual_config}'" if a.residual_config else "")
+             + (f" --contact-config '{a.contact_config}'" if a.contact_config else "")
              + (f" --fusion-config '{a.fusion_config}'" if a.fusion_config else ""))
     print(f"# python benchmarks/residuals_pipeline.py --preset {a.preset}{frames} --seed {a.seed} --object {a.object} "
           f"--interaction {a.interaction}{extra} --cases {' '.join(a.cases)}{' --diagnose' if a.diagnose else ''}")
