@@ -9,7 +9,7 @@ error of the true effect's candidate on its own held-out frames before -> after.
 
     python benchmarks/residuals_pipeline.py [--preset small] [--frames N] [--seed 21] [--object milk_carton]
         [--interaction push|strike] [--mu 0.15] [--residual-config JSON] [--cases none clock_offset ...]
-        [--contact-config JSON] [--fusion-config JSON] [--work DIR] [--diagnose [--loops MODEL@POSES ...]]
+        [--tracking-config JSON] [--contact-config JSON] [--fusion-config JSON] [--work DIR] [--diagnose [--loops MODEL@POSES ...]]
 
 ``--interaction strike``: impulsive pushes, the object slides free (baking box by default, declared table
 friction 0.15, the hidden values of ``benchmarks/residuals.py strike``; cases none, friction_object_table,
@@ -338,6 +338,8 @@ def main() -> None:
     ap.add_argument("--pipeline-preset", default="default")
     ap.add_argument("--residual-config", default=None,
                     help='JSON overrides of the residual stage config, e.g. \'{"max_base_error_rel_learned": 0.08}\'')
+    ap.add_argument("--tracking-config", default=None,
+                    help='JSON overrides of the tracking stage config, e.g. \'{"w_sil": 1.0}\' (every stage recomputed)')
     ap.add_argument("--contact-config", default=None,
                     help='JSON overrides of the contact stage config, e.g. \'{"w_pen_ee": 50}\' (stored tracking '
                          'outputs are reused; contact and what follows are recomputed)')
@@ -366,6 +368,7 @@ def main() -> None:
     mu = a.mu if a.mu is not None else (STRIKE_MU if strike else None)
     config, flags = {}, {}
     for stage, text, flag in (("residuals", a.residual_config, "--residual-config"),
+                              ("tracking", a.tracking_config, "--tracking-config"),
                               ("contact", a.contact_config, "--contact-config"),
                               ("fusion", a.fusion_config, "--fusion-config")):
         if text:
@@ -393,6 +396,7 @@ def main() -> None:
 
     frames = f" --frames {a.frames}" if a.frames else ""
     extra = ((f" --mu {a.mu}" if a.mu is not None else "") + (f" --residual-config '{a.residual_config}'" if a.residual_config else "")
+             + (f" --tracking-config '{a.tracking_config}'" if a.tracking_config else "")
              + (f" --contact-config '{a.contact_config}'" if a.contact_config else "")
              + (f" --fusion-config '{a.fusion_config}'" if a.fusion_config else ""))
     print(f"# python benchmarks/residuals_pipeline.py --preset {a.preset}{frames} --seed {a.seed} --object {a.object} "
