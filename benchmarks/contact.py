@@ -221,7 +221,8 @@ def bench_synth(args) -> dict:
     res = {}
     for kind, inter in [("baking_box", "push"), ("baking_box", "topple"), ("prism", "pivot")]:
         obj, S, ee, ev, dt = _push_session(kind, inter, 1)
-        cfg = ContactConfig(epochs=args.epochs, w_pen=args.w_pen, geometry=args.geometry or "dsf")
+        cfg = ContactConfig(epochs=args.epochs, w_pen=args.w_pen, geometry=args.geometry or "dsf",
+                            **(json.loads(args.overrides) if args.overrides else {}))
         t0 = time.perf_counter()
         out = run(_inputs([S], dt, mass=obj.mass, ee=((ee,), (ev,))), cfg)
         wall = time.perf_counter() - t0
@@ -235,13 +236,16 @@ def bench_synth(args) -> dict:
             e_mean, e_med = float(err.mean()), float(np.median(err))
         else:
             e_mean = e_med = float("nan")
+        com_true = np.asarray(obj.mesh.center_mass, float)  # uniform object (origin at its centroid), no CoM offset
+        com_err = 1000 * float(np.linalg.norm(out.com_O - com_true))
         res[f"{kind}/{inter}"] = {"contacted_face_err_mean_mm": 1000 * e_mean, "median_mm": 1000 * e_med,
+                                  "com_err_mm": com_err,
                                   "physible_pairs": int(len(N)), "wall_s": wall,
                                   "learned_extents_m": np.ptp(Vl, axis=0).tolist(),
                                   "true_extents_m": np.ptp(Vt, axis=0).tolist()}
         print(f"{kind}/{inter}: contacted-face support error mean {1000 * e_mean:.1f} mm (median {1000 * e_med:.1f} mm) "
               f"over {len(N)} physible pairs; extents learned {np.round(np.ptp(Vl, axis=0), 3)} true "
-              f"{np.round(np.ptp(Vt, axis=0), 3)} ({wall:.0f} s)")
+              f"{np.round(np.ptp(Vt, axis=0), 3)}; CoM error {com_err:.1f} mm ({wall:.0f} s)")
         sys.stdout.flush()
     return res
 
@@ -326,6 +330,7 @@ def main() -> None:
     ap.add_argument("--learn-friction", action="store_true")
     ap.add_argument("--table-height", type=float, default=0.0,
                     help="cube: table plane height in the data's world frame (m) for learning and rollouts")
+    ap.add_argument("--overrides", default=None, help='synth: JSON overrides of ContactConfig, e.g. \'{"w_com_centroid": 10}\'')
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="write the figures as JSON")
     args = ap.parse_args()

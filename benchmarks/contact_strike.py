@@ -145,6 +145,7 @@ def main() -> None:
                                 learn_com=cfg.learn_com, learn_friction=cfg.learn_friction,
                                 learn_mass=cfg.learn_mass, seed=cfg.seed, geometry=cfg.geometry,
                                 n_vertices=cfg.n_vertices)
+            com_init = model.inertia.com.detach().numpy().copy()
             res = train(model, trn, inputs.dt, cfg, ee_radius=inputs.ee_radius, visible_points=inputs.visible_points_O)
             ev = evaluate(model, trn, inputs.dt, cfg, ee_radius=inputs.ee_radius)
             P, N = physible_set(ev, cfg.physible_fraction, cfg.max_physible_points, cfg.seed)
@@ -164,7 +165,9 @@ def main() -> None:
                       f"[{phi_ee.min():.1f}, {phi_ee.max():.1f}]; all transitions: {(ev['phi'][:, is_ee][:, 0] < -0.003).sum()} "
                       f"with the sphere > 3 mm inside the learned shape")
             print(f"{meta['name']} {meta['sha256'][:8]} contact re-run on {a.poses} poses (tracking "
-                  f"{cm['inputs']['tracking'][:10]}), {len(trn)} transitions, {len(res.loss_history)} epochs, "
+                  f"{cm['inputs']['tracking'][:10]}), {len(trn)} transitions, {len(res.loss_history)} epochs "
+                  f"(best epoch loss {res.loss_history[res.best_epoch]:.4g}; contact loss of the final pass "
+                  f"{float(np.mean(ev['loss'])):.4g}), "
                   f"{time.time() - t0:.0f} s wall / {_cpu() - c0:.0f} s CPU")
         d = outside(Pe) * 1e3
         uniq = np.unique(np.round(Pe, 4), axis=0)
@@ -183,6 +186,41 @@ def main() -> None:
         print(f"  learned hull {trimesh.convex.convex_hull(HV).volume * 1e3:.3f} L (true "
               f"{np.prod(hi - lo) * 1e3:.3f} L); support excess -x/+x/-y/+y/+z (mm) "
               + " / ".join(f"{e:.1f}" for e in exc))
+        # centre of mass against the true one (the uniform true shape's centroid; ground truth, diagnosis only):
+        # learned, the initial value (centroid of the initial geometry) and the uniform centroid of the learned hull
+        from service.contact.inertia import solid_hull_inertia
+
+        com_true_G = np.asarray(gt.mesh.to_trimesh().center_mass, float)
+
+        def in_G(c_O):
+            return (np.asarray(c_O, float) - X_OG[:3, 3]) @ X_OG[:3, :3]
+
+        rows = [("hull centroid", solid_hull_inertia(HV, 1.0)[0])]
+        if info is not None:
+            lt = ev["lam"][..., 0][:, ~is_ee]  # table normal impulses (S,n_plane) and their witness points
+            Wt = ev["witness"][:, ~is_ee]
+            w_imp = (Wt * lt[..., None]).sum((0, 1)) / max(lt.sum(), 1e-12)
+            rows = [("learned", model.inertia.com.detach().numpy()), ("initial", com_init),
+                    ("table impulse centre", w_imp)] + rows
+        elif a.stored:
+            rows = [("learned", co.com_O)] + rows
+        print("  CoM - true CoM in the true shape's axes (mm): " + "; ".join(
+            f"{n} " + " ".join(f"{x * 1e3:+.1f}" for x in in_G(c) - com_true_G) + f" (|{np.linalg.norm(in_G(c) - com_true_G) * 1e3:.1f}|)"
+            for n, c in rows) + f"; box half-extents (mm) " + " ".join(f"{x * 1e3:.1f}" for x in (hi - lo) / 2))
+        if info is not None:
+            # how strongly the data hold the CoM: the final pass's mean contact loss with only the CoM replaced
+            import torch
+
+            c_keep = model.inertia.com.detach().clone()
+            parts = []
+            for n, c in (("learned", c_keep.numpy()), ("hull centroid", rows[-1][1]),
+                         ("true", X_OG[:3, :3] @ com_true_G + X_OG[:3, 3])):
+                with torch.no_grad():
+                    model.inertia.com.copy_(torch.as_tensor(np.asarray(c, float)))
+                parts.append(f"{n} {float(np.mean(evaluate(model, trn, inputs.dt, cfg, ee_radius=inputs.ee_radius)['loss'])):.5g}")
+            with torch.no_grad():
+                model.inertia.com.copy_(c_keep)
+            print("  mean contact loss with the CoM at: " + ", ".join(parts) + " (geometry and moments as learned)")
         if info is None:
             continue
         trn, sel, inputs, res = info

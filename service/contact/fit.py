@@ -29,7 +29,7 @@ from service.contact.learn import (
     vision_loss,
 )
 from service.contact.geometry import outward_directions_to
-from service.contact.inertia import enclosing_ellipsoid, realizability_ratio
+from service.contact.inertia import com_centroid_penalty, enclosing_ellipsoid, realizability_ratio, solid_hull_inertia
 from service.contact.solver import SolverSettings
 from service.contact.types import ContactConfig, ContactInputs, ContactOutputs, StepResiduals
 from service.errors import StageFailed
@@ -99,11 +99,13 @@ def train(model: ContactModel, tr: Transitions, dt: float, cfg: ContactConfig, *
         tot, cnt = 0.0, 0
         th = time.perf_counter()
         ee_dirs_all = n_vis = None
-        if need_hull or cfg.w_realizable > 0:
+        if need_hull or cfg.w_realizable > 0 or cfg.w_com_centroid > 0:
             hull = export(model, cfg.export_grid)[0]
-            if cfg.w_realizable > 0:  # the ellipsoid enclosing the current geometry bounds CoM and inertia
+            if cfg.w_realizable > 0 or cfg.w_com_centroid > 0:  # the ellipsoid enclosing the current geometry
                 e_np, A_np = enclosing_ellipsoid(hull.vertices)
                 ell = (torch.as_tensor(e_np, dtype=torch.float64), torch.as_tensor(A_np, dtype=torch.float64))
+            if cfg.w_com_centroid > 0:  # uniform-density centroid of the current (detached) hull
+                c_hull = torch.as_tensor(solid_hull_inertia(hull.vertices, 1.0)[0], dtype=torch.float64)
             if c_O is not None:
                 ee_dirs_all = torch.as_tensor(outward_directions_to(hull, c_O, cfg.closest_candidates)[2], dtype=torch.float64)
             if V is not None:
@@ -128,6 +130,8 @@ def train(model: ContactModel, tr: Transitions, dt: float, cfg: ContactConfig, *
                 loss = loss + w.vision * vision_loss(model, V, None, n_vis)
             if cfg.w_realizable > 0:
                 loss = loss + cfg.w_realizable * (realizability_ratio(model.inertia, *ell) - 1.0).clamp_min(0.0) ** 2
+            if cfg.w_com_centroid > 0:
+                loss = loss + cfg.w_com_centroid * com_centroid_penalty(model.inertia.com, c_hull, ell[1])
             opt.zero_grad()
             loss.backward()
             opt.step()
@@ -292,10 +296,13 @@ def _run(inputs: ContactInputs, cfg: ContactConfig, progress: Progress) -> Conta
         mu = model.mu.detach().numpy()
         e_np, A_np = enclosing_ellipsoid(mesh.vertices)
         ratio = float(realizability_ratio(model.inertia, torch.as_tensor(e_np), torch.as_tensor(A_np)))
+        c_hull = solid_hull_inertia(mesh.vertices, 1.0)[0]
     metrics = {
         # tr(A(Σ + δδᵀ)) for the ellipsoid enclosing the learned geometry: ≤ 1 when a mass inside it can have
         # this CoM and inertia (inertia.py)
         "inertia_realizability": ratio,
+        # distance (m) of the learned CoM from the uniform-density centroid of the learned hull
+        "com_centroid_offset_m": float(np.linalg.norm(com - c_hull)),
         "final_loss": float(tres.loss_history[-1]) if len(tres.loss_history) else float("nan"),
         "best_loss": float(tres.loss_history[tres.best_epoch]) if len(tres.loss_history) else float("nan"),
         "best_epoch": float(tres.best_epoch),

@@ -12,6 +12,10 @@ has ∫ρ (x − e)ᵀA(x − e) dx ≤ m, i.e. tr(A (Σ + (c − e)(c − e)ᵀ
 Log-Cholesky parameters guarantee Σ ≻ 0 only; they allow a body whose inertia no mass inside its own shape
 could have. ``realizability_ratio`` > 1 measures how far θ is outside the bound of the ellipsoid enclosing
 the current geometry (``enclosing_ellipsoid``, Khachiyan's minimum-volume algorithm).
+
+CoM prior (``com_centroid_penalty``): (c − ĉ)ᵀA(c − ĉ), with ĉ the uniform-density centroid of the current hull and A
+the shape matrix of its enclosing ellipsoid (scale-free: 1 when the offset reaches the ellipsoid's surface). Where
+the motion leaves the CoM weakly observed (objects sliding flat), it ties c to the shape as a uniform body would.
 """
 
 from __future__ import annotations
@@ -118,3 +122,10 @@ def realizability_ratio(inertia: "RigidBodyInertia", e: torch.Tensor, A: torch.T
     L = torch.stack([torch.stack([ex[0], z, z]), torch.stack([s[0], ex[1], z]), torch.stack([s[1], s[2], ex[2]])])
     dc = inertia.com - e
     return torch.trace(A @ (L @ L.T)) + dc @ A @ dc
+
+
+def com_centroid_penalty(com: torch.Tensor, centroid: torch.Tensor, A: torch.Tensor) -> torch.Tensor:
+    """(c − ĉ)ᵀA(c − ĉ) for the CoM c (3,), a centroid ĉ (3,) and an ellipsoid shape matrix A (3,3) (module
+    docstring); differentiable in c."""
+    dc = com - centroid
+    return dc @ A @ dc

@@ -82,6 +82,9 @@ class ContactConfig:
     w_pen_ee: float | None = None
     w_vision: float = 0.04
     w_realizable: float = 1.0  # density realizability of the inertia inside the current geometry (0 = off)
+    # prior of the CoM toward the uniform-density centroid of the current hull, (c − ĉ)ᵀA(c − ĉ) with A the shape
+    # matrix of the hull's enclosing ellipsoid (0 = off; docs/contact.md, "Centre of mass of strike sessions")
+    w_com_centroid: float = 0.0
     # geometry
     geometry: str = "dsf"  # "dsf" deep support function (Vysics) | "polytope" learnable vertices (ContactNets)
     n_vertices: int = 300  # polytope: number of vertices (initialised on the guess / ball)
@@ -117,7 +120,7 @@ class ContactConfig:
     def __post_init__(self):
         if self.geometry not in ("dsf", "polytope"):
             raise ValueError(f"ContactConfig.geometry must be 'dsf' or 'polytope', got {self.geometry!r}")
-        for name in ("w_pred", "w_comp", "w_diss", "w_pen", "w_vision", "w_realizable"):
+        for name in ("w_pred", "w_comp", "w_diss", "w_pen", "w_vision", "w_realizable", "w_com_centroid"):
             if not float(getattr(self, name)) >= 0:
                 raise ValueError(f"ContactConfig.{name} must be a number >= 0, got {getattr(self, name)!r}")
         if self.w_pen_ee is not None and not float(self.w_pen_ee) >= 0:
