@@ -271,6 +271,12 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     observable = int(np.sum(votes > 0)) > 0
     idx = np.nonzero(ok)[0]
     full = np.interp(np.arange(n), idx, theta[idx])
+    return _finish(full, smooth, max_deg, lam, a, c, votes, observable)
+
+
+def _finish(full, smooth, max_deg, lam, a, c, votes, observable) -> SpinResult:
+    """The spins (n,) median-filtered over ``smooth`` frames, frame 0 held at 0, and the result; a correction above
+    ``max_deg`` anywhere is not applied (``rejected``)."""
     if smooth > 1:
         from scipy.ndimage import median_filter
 
@@ -279,7 +285,7 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     if max_deg > 0 and np.max(np.abs(full)) > np.radians(max_deg):
         # a correction this large means the votes followed something other than the surface (a lost track, whose
         # poses are off by centimetres: development bottle 561 went from 37° to 172° median): not applied
-        return SpinResult(True, lam, a, c, np.zeros(n), votes, observable, rejected=True)
+        return SpinResult(True, lam, a, c, np.zeros(len(full)), votes, observable, rejected=True)
     return SpinResult(True, lam, a, c, full, votes, observable)
 
 
@@ -409,12 +415,4 @@ def spin_graph(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
     if len(links) == 0:
         return SpinResult(True, lam, a, c, np.zeros(n), votes, False)
     np.add.at(votes, links[:, 0].astype(int), links[:, 3].astype(int))
-    full = solve_spin_graph(n, links, huber_deg)
-    if smooth > 1:
-        from scipy.ndimage import median_filter
-
-        full = median_filter(full, size=smooth, mode="nearest")
-    full[0] = 0.0
-    if max_deg > 0 and np.max(np.abs(full)) > np.radians(max_deg):
-        return SpinResult(True, lam, a, c, np.zeros(n), votes, True, rejected=True)
-    return SpinResult(True, lam, a, c, full, votes, True)
+    return _finish(solve_spin_graph(n, links, huber_deg), smooth, max_deg, lam, a, c, votes, True)

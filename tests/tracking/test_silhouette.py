@@ -99,17 +99,22 @@ def test_silhouette_fixes_the_slide_along_the_edge():
     assert r1.inlier_frac > 0.95
 
 
-def test_points_in_front_of_the_seen_surface_fix_a_slide_along_the_line_of_sight():
-    # the camera looks along the top/front edge (x) from the +x side: a slide along x hardly moves the outline,
-    # but the model's top and front faces then stick out in front of the +x end face the camera sees
+def _slid_along_the_line_of_sight():
+    """The camera looks along the top/front edge (x) from the +x side; the model's points near the middle, started
+    6 mm along x: (X_WC, depth, mask, view, kd-tree of the model, model points, normals, points, start pose)."""
     X_WC = _camera((0.35, -0.12, 0.25))
     depth, mask = _render(np.eye(4), X_WC)
     view = make_view(depth, mask, K, X_WC)
     Q, N = _faces()
-    tree = cKDTree(Q)
     P_O = _faces(33)[0]
-    P_W = P_O[np.abs(P_O[:, 0]) < 0.03]
-    start = make_X(np.eye(3), np.array([0.006, 0.0, 0.0]))
+    return (X_WC, depth, mask, view, cKDTree(Q), Q, N, P_O[np.abs(P_O[:, 0]) < 0.03],
+            make_X(np.eye(3), np.array([0.006, 0.0, 0.0])))
+
+
+def test_points_in_front_of_the_seen_surface_fix_a_slide_along_the_line_of_sight():
+    # the camera looks along the top/front edge (x) from the +x side: a slide along x hardly moves the outline,
+    # but the model's top and front faces then stick out in front of the +x end face the camera sees
+    _, _, _, view, tree, Q, N, P_W, start = _slid_along_the_line_of_sight()
     r0 = refine(P_W, start, tree, Q, N, Q, view, w_sil=0.0, iters=8)
     r1 = refine(P_W, start, tree, Q, N, Q, view, w_sil=0.0, w_front=1.0, iters=8)
     assert abs(r0.X_WO[0, 3] - 0.006) < 1e-3
@@ -186,14 +191,7 @@ def test_weak_directions_only_and_free_space_gate():
     from service.tracking.geometry import IcpResult
     from service.tracking.silhouette import front_violations, weak_projector
 
-    X_WC = _camera((0.35, -0.12, 0.25))  # looks along the top/front edge from the +x side
-    depth, mask = _render(np.eye(4), X_WC)
-    view = make_view(depth, mask, K, X_WC)
-    Q, N = _faces()
-    tree = cKDTree(Q)
-    P_O = _faces(33)[0]
-    P_W = P_O[np.abs(P_O[:, 0]) < 0.03]
-    start = make_X(np.eye(3), np.array([0.006, 0.0, 0.0]))
+    X_WC, depth, mask, view, tree, Q, N, P_W, start = _slid_along_the_line_of_sight()
     # two faces seen: the slide along x is weak, the free-space term restricted to it still removes it
     r1 = refine(P_W, start, tree, Q, N, Q, view, w_sil=1.0, w_front=1.0, iters=8, weak_ratio=0.05)
     assert np.linalg.norm(r1.X_WO[:3, 3]) < 1.5e-3
