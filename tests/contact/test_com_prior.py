@@ -47,7 +47,7 @@ def test_com_centroid_penalty_value_and_gradient():
     A = torch.diag(torch.tensor([1 / 0.09**2, 1 / 0.03**2, 1 / 0.05**2], dtype=torch.float64))
     c = torch.tensor([0.0, 0.0, 0.05], dtype=torch.float64, requires_grad=True)
     p = com_centroid_penalty(c, torch.zeros(3, dtype=torch.float64), A)
-    assert abs(float(p) - 1.0) < 1e-12  # on the ellipsoid's surface
+    assert abs(p.item() - 1.0) < 1e-12  # on the ellipsoid's surface
     p.backward()
     np.testing.assert_allclose(c.grad.numpy(), [0.0, 0.0, 2 * 0.05 / 0.05**2])
     with pytest.raises(ValueError, match="w_com_centroid"):
