@@ -218,6 +218,12 @@ def xyzquat_to_pose(v: np.ndarray) -> np.ndarray:
     return make_X(quat_to_mat(v[..., 3:7]), v[..., :3])
 
 
+def pose_distance(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
+    """Distance between two poses (4,4): translation (m) and rotation angle (degrees) of A⁻¹B."""
+    dR = A[:3, :3].T @ B[:3, :3]
+    return float(np.linalg.norm(A[:3, 3] - B[:3, 3])), float(np.degrees(rotation_angle(dR)))
+
+
 def pose_errors(X_est: np.ndarray, X_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Per-pose translation error (m) and geodesic rotation error (rad) between (N,4,4) stacks."""
     dt = np.linalg.norm(X_est[..., :3, 3] - X_ref[..., :3, 3], axis=-1)

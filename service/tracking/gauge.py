@@ -44,7 +44,7 @@ def rest_frames(X: np.ndarray, tracked: np.ndarray, n_points: np.ndarray, p_WE: 
     the model points in O, the centre mapped to O with X[j]) or whose pose X[j] is farther than max_deg / max_dist
     from X[0]; untracked frames and frames with fewer than min_points points are skipped. Empty without robot
     data (p_WE None)."""
-    from service.transforms import X_inv, rotation_angle
+    from service.transforms import X_inv, pose_distance
 
     out: list[int] = []
     if p_WE is None or len(p_WE) != len(X):
@@ -56,8 +56,8 @@ def rest_frames(X: np.ndarray, tracked: np.ndarray, n_points: np.ndarray, p_WE: 
         d, _ = model_tree.query(Xi[:3, :3] @ p_WE[j] + Xi[:3, 3])
         if d < ee_radius + margin:
             break  # the robot may touch the object from here on
-        ang = np.degrees(rotation_angle(X[0][:3, :3].T @ X[j][:3, :3]))
-        if ang > max_deg or np.linalg.norm(X[j][:3, 3] - X[0][:3, 3]) > max_dist:
+        dist, ang = pose_distance(X[0], X[j])
+        if ang > max_deg or dist > max_dist:
             break
         if tracked[j] and n_points[j] >= min_points:
             out.append(j)

@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.transforms import X_inv, make_X, rotation_angle
+from service.transforms import X_inv, make_X, pose_distance
 
 
 @dataclass
@@ -56,10 +56,6 @@ class Landing:
     adopted: bool
 
 
-def _step(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
-    return float(np.linalg.norm(A[:3, 3] - B[:3, 3])), float(np.degrees(rotation_angle(A[:3, :3].T @ B[:3, :3])))
-
-
 def find_gap(X: np.ndarray, tracked: np.ndarray, i: int, still_frames: int, still_deg: float, still_dist: float,
              fast_deg: float, fall_deg: float, window: int, after: int = 0) -> int | None:
     """g0 (first frame of the fast stretch) when frame i ends a still run of ``still_frames`` tracked consecutive
@@ -69,7 +65,7 @@ def find_gap(X: np.ndarray, tracked: np.ndarray, i: int, still_frames: int, stil
     if j0 < 2 or not tracked[j0:i + 1].all():
         return None
     for j in range(j0 + 1, i + 1):
-        dt, da = _step(X[j - 1], X[j])
+        dt, da = pose_distance(X[j - 1], X[j])
         if da > still_deg or dt > still_dist:
             return None
     # steps between consecutive tracked frames before the still run (rate per frame)
@@ -83,7 +79,7 @@ def find_gap(X: np.ndarray, tracked: np.ndarray, i: int, still_frames: int, stil
             k -= 1
         if k < 0:
             break
-        da = _step(X[k], X[j])[1] / (j - k)
+        da = pose_distance(X[k], X[j])[1] / (j - k)
         if da > fast_deg or (j - k > 1 and da > 0.5 * fast_deg):
             fast = j
             break
@@ -92,7 +88,7 @@ def find_gap(X: np.ndarray, tracked: np.ndarray, i: int, still_frames: int, stil
     g0 = fast - 1
     while g0 > 1:
         k = g0 - 1
-        if not (tracked[g0] and tracked[k]) or _step(X[k], X[g0])[1] > fall_deg:
+        if not (tracked[g0] and tracked[k]) or pose_distance(X[k], X[g0])[1] > fall_deg:
             g0 -= 1
         else:
             break

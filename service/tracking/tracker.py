@@ -56,7 +56,7 @@ from scipy.spatial import cKDTree
 from service.tracking.geometry import (IcpResult, backproject, color_gradients, crease_points, depth_continuous, icp,
                                        pixel_normals, ransac_rigid)
 from service.tracking.types import TrackingConfig
-from service.transforms import X_inv, make_X, rotation_angle, so3_exp, so3_log
+from service.transforms import X_inv, make_X, pose_distance, so3_exp, so3_log
 
 if TYPE_CHECKING:
     from service.tracking.spin import SpinResult
@@ -246,7 +246,7 @@ def _better(a: IcpResult, b: IcpResult | None) -> bool:
 def _jump(X_a: np.ndarray, X_b: np.ndarray, dt: float, cfg: TrackingConfig) -> bool:
     """True when going from pose X_a to X_b in dt seconds needs more than max_speed / max_rate_deg: no pushed
     object moves so (a topple turns at ≈ 200 °/s), but a flip to a symmetric pose of a partly seen box does."""
-    dist, ang = _pose_dist(X_a, X_b)
+    dist, ang = pose_distance(X_a, X_b)
     dt = max(float(dt), 1e-6)
     return dist / dt > cfg.max_speed or ang / dt > cfg.max_rate_deg
 
@@ -267,7 +267,7 @@ def _defer_keyframe(X_a: np.ndarray, X_i: np.ndarray, X_kf: np.ndarray, dt: floa
     if new_surface and not far and not cfg.kf_still_new:
         return False
     dt = max(float(dt), 1e-6)
-    step_m, step_deg = _pose_dist(X_a, X_i)
+    step_m, step_deg = pose_distance(X_a, X_i)
     if step_m / dt <= cfg.kf_still_speed and step_deg / dt <= cfg.kf_still_rate_deg:
         return False  # nearly still: no lag
     if cfg.kf_still_tilt_deg is not None:
@@ -276,11 +276,6 @@ def _defer_keyframe(X_a: np.ndarray, X_i: np.ndarray, X_kf: np.ndarray, dt: floa
         if np.degrees(np.arccos(c)) > cfg.kf_still_tilt_deg:
             return False  # tipping: new faces come into view, keyframes are needed during the turn
     return True
-
-
-def _pose_dist(A: np.ndarray, B: np.ndarray) -> tuple[float, float]:
-    dR = A[:3, :3].T @ B[:3, :3]
-    return float(np.linalg.norm(A[:3, 3] - B[:3, 3])), float(np.degrees(rotation_angle(dR)))
 
 
 def near_effector(session, i: int, P_W: np.ndarray, cfg: TrackingConfig) -> np.ndarray:
@@ -443,7 +438,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         best_ok = True
         for Xc in cands:
             if best is not None and _good(best, cfg):
-                dt, da = _pose_dist(best.X_WO, Xc)
+                dt, da = pose_distance(best.X_WO, Xc)
                 if dt < 0.01 and da < 5.0:
                     continue  # this start converges to the pose already found
             r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw,
@@ -482,7 +477,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 if sil_st:
                     sil_Q = _sil_model(model, keyframes, rims, cfg)
         # keyframe?
-        dists = [_pose_dist(kf.X_WO, X[i]) for kf in keyframes]
+        dists = [pose_distance(kf.X_WO, X[i]) for kf in keyframes]
         far = min(max(d / cfg.kf_dist, ang / cfg.kf_angle_deg) for d, ang in dists) >= 1.0
         new_frac = float(np.mean(best.nn_dist > cfg.inlier_dist))
         still = True
@@ -618,7 +613,7 @@ def _final_from_neighbors(session, obs: list[FrameObs], X: np.ndarray, tracked: 
         if len(o.P_W) < cfg.min_points:
             continue
         starts = [X0[j] for j in (i - 1, i + 1) if 0 < j < len(obs) and tracked[j]
-                  and any(np.array(_pose_dist(X0[i], X0[j])) > (cfg.final_nb_dist, cfg.final_nb_deg))]
+                  and any(np.array(pose_distance(X0[i], X0[j])) > (cfg.final_nb_dist, cfg.final_nb_deg))]
         if not starts:
             continue
         view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
@@ -726,12 +721,12 @@ def _settle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.ndarr
     for Xs in starts:
         r = icp(o.P_W, Xs, M.tree, M.Q, M.N, N_src=o.N_W, **kw)
         Xsl, _ = slide_search(Ps, r.X_WO, M.tree, Qs, view)
-        if _pose_dist(Xsl, r.X_WO)[0] > 0.004:
+        if pose_distance(Xsl, r.X_WO)[0] > 0.004:
             r = icp(o.P_W, Xsl, M.tree, M.Q, M.N, N_src=o.N_W, **kw)
         s_r = sc(r)
         if s_r > s_best:
             best, s_best = r, s_r
-    dt, da = _pose_dist(X[i], best.X_WO) if best is not None else (0.0, 0.0)
+    dt, da = pose_distance(X[i], best.X_WO) if best is not None else (0.0, 0.0)
     adopt = best is not None and (dt > cfg.settle_min_dist or da > cfg.settle_min_deg) \
         and s_best > s_old + cfg.settle_margin and best.inlier_frac >= cfg.settle_min_frac
     landings.append(Landing(g0, i, X[i].copy(), None if best is None else best.X_WO.copy(), float(s_old),
@@ -920,7 +915,7 @@ def _kf_features(kp_W: np.ndarray, desc: np.ndarray | None, X_WO: np.ndarray, ke
     (None, None) when features are off or fewer than 6 survive."""
     if cfg.w_feat_degen <= 0 or desc is None or len(kp_W) < 6 or not keyframes:
         return None, None
-    ang = [_pose_dist(kf.X_WO, X_WO)[1] for kf in keyframes]
+    ang = [pose_distance(kf.X_WO, X_WO)[1] for kf in keyframes]
     A, B = [], []
     for j in np.argsort(ang)[:n_kf]:
         kf = keyframes[j]
@@ -936,7 +931,7 @@ def _kf_features(kp_W: np.ndarray, desc: np.ndarray | None, X_WO: np.ndarray, ke
     Xr, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng)
     if Xr is None or inl.sum() < 6:
         return None, None
-    dt, da = _pose_dist(X_inv(Xr), X_WO)
+    dt, da = pose_distance(X_inv(Xr), X_WO)
     if dt > 0.03 or da > 30.0:
         return None, None
     return fW[inl], fO[inl]
@@ -987,7 +982,7 @@ def _sil_refine(session, i: int, P_W: np.ndarray, r: IcpResult, model: ObjectMod
                  inlier_dist=cfg.inlier_dist, w_sil=cfg.w_sil, tol_px=cfg.sil_tol_px, occ_margin=cfg.sil_occ_margin,
                  huber_px=cfg.sil_huber_px, max_px=cfg.sil_max_px, w_front=cfg.sil_w_front,
                  front_margin=cfg.sil_front_margin, weak_ratio=cfg.sil_weak_ratio, weak_len=cfg.sil_weak_len)
-    dt, da = _pose_dist(r.X_WO, out.X_WO)
+    dt, da = pose_distance(r.X_WO, out.X_WO)
     if not _good(out, cfg) or dt > cfg.sil_max_step or da > cfg.sil_max_step_deg \
             or out.inlier_frac < r.inlier_frac - cfg.sil_max_inlier_loss:
         return r  # a correction of a few millimetres is what the term is for: a larger move is a misfit
