@@ -45,6 +45,8 @@ from service.contact.simulate import Body, box_vertices, rollout_trajectories  #
 from service.contact.types import ContactConfig, ContactInputs  # noqa: E402
 from service.session.types import Friction  # noqa: E402
 
+from _overrides import stage_overrides  # noqa: E402
+
 SHARED = Path(__file__).resolve().parents[2] / "shared"  # shared/ sits beside the repository
 DATA = Path(SHARED, "data/real")
 CUBE_HALF = 0.0524
@@ -222,7 +224,7 @@ def bench_synth(args) -> dict:
     for kind, inter in [("baking_box", "push"), ("baking_box", "topple"), ("prism", "pivot")]:
         obj, S, ee, ev, dt = _push_session(kind, inter, 1)
         cfg = ContactConfig(epochs=args.epochs, w_pen=args.w_pen, geometry=args.geometry or "dsf",
-                            **(json.loads(args.overrides) if args.overrides else {}))
+                            **args.overrides)
         t0 = time.perf_counter()
         out = run(_inputs([S], dt, mass=obj.mass, ee=((ee,), (ev,))), cfg)
         wall = time.perf_counter() - t0
@@ -334,6 +336,7 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=0)
     ap.add_argument("--out", type=Path, default=None, help="write the figures as JSON")
     args = ap.parse_args()
+    args.overrides = stage_overrides(ap, args.overrides, "--overrides", "contact")
     if args.threads:
         torch.set_num_threads(args.threads)
     print("command: python benchmarks/contact.py " + " ".join(sys.argv[1:]))

@@ -31,6 +31,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _overrides import stage_overrides
 
 
 def _cpu() -> float:
@@ -66,6 +67,9 @@ def main() -> None:
     ap.add_argument("--tracking", default=None, help="tracking artifact key prefix (default: the newest)")
     ap.add_argument("--list", action="store_true", help="print per end-effector point details")
     a = ap.parse_args()
+    over = stage_overrides(ap, a.config, "--config", "contact")
+    if not (a.data / "artifacts").is_dir():
+        ap.error(f"{a.data}: not a pipeline data folder (no artifacts/ in it)")
 
     from service.contact import inputs_from_tracking
     from service.contact.fit import evaluate, physible_set, train
@@ -79,7 +83,6 @@ def main() -> None:
     from service.tracking.velocity import velocities
     from service.transforms import X_inv, make_X
 
-    over = json.loads(a.config) if a.config else {}
     cfg = ContactConfig(**over)
     art = a.data / "artifacts"
 
@@ -89,6 +92,8 @@ def main() -> None:
     ingest = {m["key"]: m["metrics"] for m in manifests("ingest")}
     sessions = sorted({k for k, m in ingest.items() if (a.name is None or m.get("name") == a.name)
                        and (a.session is None or m["sha256"].startswith(a.session))})
+    if not sessions:
+        ap.error(f"{a.data}: no stored session matches --name {a.name} --session {a.session}")
     print(f"# python benchmarks/contact_strike.py {a.data}" + (f" --name {a.name}" if a.name else "")
           + (f" --session {a.session}" if a.session else "") + f" --poses {a.poses}"
           + (f" --config '{a.config}'" if a.config else "") + (" --stored" if a.stored else ""))

@@ -28,6 +28,8 @@ import resource
 import time
 from pathlib import Path
 
+from _overrides import stage_overrides
+
 CASES = {
     "none": {},
     "friction_object_table": {"friction_object_table": 0.5},
@@ -366,26 +368,13 @@ def main() -> None:
     a.object = a.object or ("baking_box" if strike else "milk_carton")
     a.cases = a.cases or list(cases)
     mu = a.mu if a.mu is not None else (STRIKE_MU if strike else None)
-    config, flags = {}, {}
+    config = {}
     for stage, text, flag in (("residuals", a.residual_config, "--residual-config"),
                               ("tracking", a.tracking_config, "--tracking-config"),
                               ("contact", a.contact_config, "--contact-config"),
                               ("fusion", a.fusion_config, "--fusion-config")):
-        if text:
-            flags[stage] = flag
-            try:
-                config[stage] = json.loads(text)
-            except json.JSONDecodeError as e:
-                ap.error(f"{flag}: not JSON ({e})")
-            if not isinstance(config[stage], dict):
-                ap.error(f"{flag}: expected a JSON object of {stage} config fields")
-    if config:
-        from service.config import PipelineConfig
-
-        try:  # an unknown field or a bad value is refused before any session is made
-            PipelineConfig.from_dict(config)
-        except (ValueError, TypeError) as e:
-            ap.error(f"{' / '.join(flags.values())}: {e}")
+        if text:  # an unknown field or a bad value is refused before any session is made
+            config[stage] = stage_overrides(ap, text, flag, stage)
     config = config or None
     work = Path(a.work)
     data_dir = work / "data"
