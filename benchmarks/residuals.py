@@ -11,7 +11,7 @@ inertia m s²/6), table at z = 0, no robot. Tosses are split into training and h
     python benchmarks/residuals.py real [--max-tosses N] [--plots DIR]
     python benchmarks/residuals.py synthetic [--seeds 1 2 3 4 5]
     python benchmarks/residuals.py lab [--seeds 601 602] [--cases none clock_offset ...] [--exact-model]
-    python benchmarks/residuals.py strike [--seeds 601 602] [--cases none friction tilt ...]
+    python benchmarks/residuals.py strike [--seeds 601 602] [--cases none friction tilt ...] [--candidates ...]
 
 Every subcommand takes ``--unit-statistic mean`` to judge with the earlier held-out test over units (percentile
 bootstrap of the mean per-unit difference in metres) instead of the current one (Student-t bound on the mean
@@ -247,7 +247,15 @@ STRIKE_CASES = {
                     ("restitution", "friction_table", "clock_offset")),
     "angular_damping": ({"angular_damping": 2.0}, "angular_damping", "angular_damping", 2.0,
                         ("angular_damping", "linear_damping", "friction_table")),
+    # object-robot friction 0.5 against the declared 0.15 (SynthSpec.friction_object_robot): the fitted parameter is
+    # the factor on the prior, truth 0.5 / 0.15
+    "friction_robot": ({"friction_object_robot": 0.5}, "friction_robot", "friction_scale_robot", 0.5 / 0.15,
+                       ("friction_robot", "friction_table", "com_offset")),
+    "friction_robot_low": ({"friction_object_robot": 0.05}, "friction_robot", "friction_scale_robot", 0.05 / 0.15,
+                           ("friction_robot", "friction_table", "com_offset")),
 }
+# "no effect" of a scalar case's parameter where it is not 0 (the error is relative to the departure from it)
+STRIKE_NULL = {"friction": "mu", "friction_robot": 1.0, "friction_robot_low": 1.0}
 
 
 def strike(args) -> None:
@@ -268,6 +276,8 @@ def strike(args) -> None:
     n_ok = n = 0
     for case in args.cases:
         hidden, name, key, truth, cands = STRIKE_CASES[case]
+        if args.candidates:  # the same sessions against another candidate set (e.g. with friction_robot among them)
+            cands = tuple(args.candidates)
         for seed in args.seeds:
             t0 = time.time()
             c0 = resource.getrusage(resource.RUSAGE_SELF).ru_utime
@@ -295,7 +305,9 @@ def strike(args) -> None:
                     fs = "(" + ", ".join(f"{v:.4f}" for v in fitted) + ")"
                 else:
                     fv = c.params.get(key, float("nan"))
-                    rel = abs(fv - truth) / abs(truth - (args.mu if case == "friction" else 0.0))
+                    null = STRIKE_NULL.get(case, 0.0)
+                    null = args.mu if null == "mu" else null
+                    rel = abs(fv - truth) / abs(truth - null)
                     fs = f"{fv:.4g}"
                 ratio = sa / sb if sb else float("nan")
                 ok = ok and rel <= 0.25 and ratio <= 0.6
@@ -346,6 +358,8 @@ def main() -> None:
     st.add_argument("--object", default="baking_box")
     st.add_argument("--frames", type=int, default=900)
     st.add_argument("--mu", type=float, default=0.15)
+    st.add_argument("--candidates", nargs="+", default=None,
+                    help="candidate effects for every case (default: each case's own: its effect and two look-alikes)")
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
     for sp in (r, s, lb, st):
