@@ -11,7 +11,8 @@ inertia m s²/6), table at z = 0, no robot. Tosses are split into training and h
     python benchmarks/residuals.py real [--max-tosses N] [--plots DIR]
     python benchmarks/residuals.py synthetic [--seeds 1 2 3 4 5]
     python benchmarks/residuals.py lab [--seeds 601 602] [--cases none clock_offset ...] [--exact-model]
-    python benchmarks/residuals.py strike [--seeds 601 602] [--cases none friction tilt ...]
+    python benchmarks/residuals.py strike [--seeds 601 602] [--cases none friction tilt ...] [--candidates ...]
+        [--true-split] [--pose-noise 0]
 
 Every subcommand takes ``--unit-statistic mean`` to judge with the earlier held-out test over units (percentile
 bootstrap of the mean per-unit difference in metres) instead of the current one (Student-t bound on the mean
@@ -247,7 +248,47 @@ STRIKE_CASES = {
                     ("restitution", "friction_table", "clock_offset")),
     "angular_damping": ({"angular_damping": 2.0}, "angular_damping", "angular_damping", 2.0,
                         ("angular_damping", "linear_damping", "friction_table")),
+    # object-robot friction 0.5 against the declared 0.15 (SynthSpec.friction_object_robot): the fitted parameter is
+    # the factor on the prior, truth 0.5 / 0.15
+    "friction_robot": ({"friction_object_robot": 0.5}, "friction_robot", "friction_scale_robot", 0.5 / 0.15,
+                       ("friction_robot", "friction_table", "com_offset")),
+    "friction_robot_low": ({"friction_object_robot": 0.05}, "friction_robot", "friction_scale_robot", 0.05 / 0.15,
+                           ("friction_robot", "friction_table", "com_offset")),
 }
+# "no effect" of a scalar case's parameter where it is not 0 (the error is relative to the departure from it)
+STRIKE_NULL = {"friction": "mu", "friction_robot": 1.0, "friction_robot_low": 1.0}
+
+
+def _true_split(ls, model, name, truth, cfg) -> str:
+    """Block errors of the declared model and of the model with the hidden effect at its *true* value, on the
+    effect's frames of every block (training and held-out) where it acts: how much the data can show the effect at
+    all, whatever the fit and the held-out test do (the loop's own blocks, start states and simulator)."""
+    from service.residuals.effects import REGISTRY, apply_effects
+    from service.residuals.loop import Evaluator, effect_mask, make_segments, reduce_blocks, smooth_robot
+    from service.residuals.modes import classify, object_radius
+    from service.residuals.simulate import make_simulator
+    from service.residuals.types import ResidualInputs
+
+    robot = smooth_robot(ls.robot, cfg)
+    inp = ResidualInputs(model, (ls.trajectory,), ls.table_height, robot=(robot,))
+    segs = make_segments(inp, [classify(model, ls.trajectory, ls.table_height, robot, cfg)], cfg)
+    eff = REGISTRY[name]
+    masks = [effect_mask(sg, eff) for sg in segs]
+    keep = [i for i, m in enumerate(masks) if m.sum() >= 3]
+    segs, masks = [segs[i] for i in keep], [masks[i] for i in keep]
+    sim = make_simulator(cfg.sim_substep_s)
+    try:
+        ev = Evaluator(sim, ls.table_height, object_radius(model))
+        theta = tuple(truth) if isinstance(truth, tuple) else (truth,)
+        m1, e1 = apply_effects(model, {name: theta})
+        b = reduce_blocks(ev.frame_scalar(model, dict(model.effects), segs), masks)
+        a = reduce_blocks(ev.frame_scalar(m1, {**model.effects, **e1}, segs), masks)
+    finally:
+        sim.close()
+    d = b - a
+    return (f"true-model split on {len(segs)} blocks where {name} acts ({int(sum(m.sum() for m in masks))} frames): "
+            f"declared {np.nanmean(b) * 1e3:.2f} mm -> true {np.nanmean(a) * 1e3:.2f} mm, better/worse "
+            f"{int(np.sum(d > 0))}/{int(np.sum(d < 0))}, median relative fall {np.nanmedian(d / b):+.0%}")
 
 
 def strike(args) -> None:
@@ -268,18 +309,25 @@ def strike(args) -> None:
     n_ok = n = 0
     for case in args.cases:
         hidden, name, key, truth, cands = STRIKE_CASES[case]
+        if args.candidates:  # the same sessions against another candidate set (e.g. with friction_robot among them)
+            cands = tuple(args.candidates)
         for seed in args.seeds:
             t0 = time.time()
             c0 = resource.getrusage(resource.RUSAGE_SELF).ru_utime
             ls = lab_session(SynthSpec(object=args.object, interaction="strike", seed=seed, preset="tiny",
                                        n_frames=args.frames, friction_object_table=args.mu,
-                                       effects=HiddenEffects(**hidden)))
+                                       effects=HiddenEffects(**hidden)),
+                             pose_noise_m=args.pose_noise, pose_noise_rad=10.0 * args.pose_noise)
             cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, seed=seed,
                                       fit_maxiter=24, max_train_segments=10,
                                       nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
                                       unit_statistic=args.unit_statistic)
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
+            if args.true_split:
+                if name:
+                    print(f"{case:15s} seed {seed}: {_true_split(ls, model, name, truth, cfg)}", flush=True)
+                continue
             out = run(ResidualInputs(model, (ls.trajectory,), ls.table_height, robot=(ls.robot,)), cfg)
             sb = out.by_mode["rollout_before"]["sliding"]["pos_err_m"]
             sa = out.by_mode["rollout_after"]["sliding"]["pos_err_m"]
@@ -295,7 +343,9 @@ def strike(args) -> None:
                     fs = "(" + ", ".join(f"{v:.4f}" for v in fitted) + ")"
                 else:
                     fv = c.params.get(key, float("nan"))
-                    rel = abs(fv - truth) / abs(truth - (args.mu if case == "friction" else 0.0))
+                    null = STRIKE_NULL.get(case, 0.0)
+                    null = args.mu if null == "mu" else null
+                    rel = abs(fv - truth) / abs(truth - null)
                     fs = f"{fv:.4g}"
                 ratio = sa / sb if sb else float("nan")
                 ok = ok and rel <= 0.25 and ratio <= 0.6
@@ -311,6 +361,8 @@ def strike(args) -> None:
             n += 1
             n_ok += ok
             print(line, flush=True)
+    if args.true_split:
+        return
     print(f"strike cases passing the test criteria (right effect alone, within 25 %, free-sliding error <= 0.6x; "
           f"plain: nothing): {n_ok}/{n}")
 
@@ -346,6 +398,13 @@ def main() -> None:
     st.add_argument("--object", default="baking_box")
     st.add_argument("--frames", type=int, default=900)
     st.add_argument("--mu", type=float, default=0.15)
+    st.add_argument("--candidates", nargs="+", default=None,
+                    help="candidate effects for every case (default: each case's own: its effect and two look-alikes)")
+    st.add_argument("--pose-noise", type=float, default=5e-4,
+                    help="pose noise, m (and 10x that in rad) added to the lab's poses (the robot log keeps its sensor noise)")
+    st.add_argument("--true-split", action="store_true",
+                    help="no loop: the block errors of the declared model and of the true effect value, on the effect's "
+                         "frames of every block where it acts (what the data can show)")
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
     for sp in (r, s, lb, st):

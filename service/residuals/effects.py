@@ -295,7 +295,9 @@ register(Effect(
     _sim_keys(("friction_scale_robot",)), needs_robot=True,
     description="factor on the object-robot Coulomb friction of the prior",
     resolution=(0.1,),
-    modes=("robot_contact",),
+    # the tangential impulse of a glancing strike shows in the free slide that follows (spin, heading): judged on
+    # the sliding frames too, as the table friction (on robot-contact frames alone a strike leaves 1-2 frames)
+    modes=("robot_contact", "sliding"),
 ))
 register(Effect(
     "com_offset", ("com_offset_x", "com_offset_y", "com_offset_z"), (-0.03,) * 3, (0.03,) * 3, (0.0,) * 3,

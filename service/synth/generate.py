@@ -205,6 +205,7 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
     travel = float(np.linalg.norm(rec.X_WM[-1, :3, 3] - rec.X_WM[0, :3, 3]))
     rot = float(rotation_angle(rec.X_WM[0, :3, :3].T @ rec.X_WM[-1, :3, :3]))
     mu_true = eff.friction_object_table if eff.friction_object_table is not None else spec.friction_object_table
+    mu_or_true = eff.friction_object_robot if eff.friction_object_robot is not None else spec.friction_object_robot
     sidecar = {
         "session": name,
         "spec": _jsonable(spec.to_dict()),
@@ -215,7 +216,7 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
             "com_mesh": rec.com_M.tolist(),
             "inertia_mesh": rec.inertia_M.tolist(),
             "friction_object_table": mu_true,
-            "friction_object_robot": spec.friction_object_robot,
+            "friction_object_robot": mu_or_true,
             "rolling_friction": spec.rolling_friction,
             "restitution": eff.restitution,
             "linear_damping": eff.linear_damping,
@@ -267,6 +268,8 @@ def _sim_effects(spec: SynthSpec) -> dict[str, float]:
         out["clock_offset"] = float(e.clock_offset)
     if e.friction_object_table is not None:
         out["friction_object_table"] = float(e.friction_object_table)
+    if e.friction_object_robot is not None and spec.friction_object_robot > 0:  # a factor on the declared mu_OR
+        out["friction_scale_robot"] = float(e.friction_object_robot) / float(spec.friction_object_robot)
     if spec.rolling_friction:
         out["rolling_friction"] = float(spec.rolling_friction)
     return out

@@ -8,7 +8,8 @@ Model
   (exactly the exported mesh for convex objects). Mass m, inertia of the uniform-density solid about its
   centroid, CoM = centroid + hidden ``com_offset``. Bullet combines friction and restitution of a pair
   by product, so object = (mu 1, e), table = (mu_OT, 1), sphere = (mu_OR, 1) give the pair values
-  mu_OT, mu_OR and restitution e. Bullet pads hull shapes by a 1 mm collision margin; the table's
+  mu_OT, mu_OR and restitution e (the hidden ``friction_object_table`` / ``friction_object_robot``, when set,
+  replace the declared mu_OT / mu_OR). Bullet pads hull shapes by a 1 mm collision margin; the table's
   collision box is lowered and the sphere's collision radius shrunk by it, so the true surfaces touch.
   A small rolling resistance rho (m, torque rho N against rolling; SynthSpec default 0.5 mm, as for
   plastic on a rubber mat) keeps round objects from rolling forever; it is in the sidecar's true values.
@@ -474,7 +475,8 @@ def simulate(
         # the strike's arm is heavier and as stiff per kg (same bandwidth); the other interactions keep EE_MASS
         ee_mass, ee_k, ee_d = controller(interaction)
         sphere = pb.createMultiBody(ee_mass, scol, -1, [start_xy[0], start_xy[1], table_h + 0.6], physicsClientId=cid)
-        pb.changeDynamics(sphere, -1, lateralFriction=mu_or, restitution=1.0, rollingFriction=0.0, spinningFriction=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
+        mu_or_true = effects.friction_object_robot if effects.friction_object_robot is not None else mu_or
+        pb.changeDynamics(sphere, -1, lateralFriction=mu_or_true, restitution=1.0, rollingFriction=0.0, spinningFriction=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
         pb.setCollisionFilterPair(sphere, table, -1, -1, 0, physicsClientId=cid)
 
         def X_WM_now() -> np.ndarray:

@@ -42,6 +42,7 @@ class HiddenEffects:
     table_tilt: tuple[float, float] = (0.0, 0.0)  # gravity tilt (rad) about world x and y
     friction_object_table: float | None = None  # true object-table friction (declared stays the prior)
     clock_offset: float = 0.0  # s added to robot.csv timestamps relative to the frames
+    friction_object_robot: float | None = None  # true object-robot (sphere) friction (declared stays the prior)
 
     def __post_init__(self) -> None:
         def num(name, lo, hi):
@@ -67,6 +68,8 @@ class HiddenEffects:
         vec("table_tilt", 2, 0.3)
         if self.friction_object_table is not None:
             num("friction_object_table", 0.0, 2.0)
+        if self.friction_object_robot is not None:
+            num("friction_object_robot", 0.0, 2.0)
 
     def active(self) -> dict[str, object]:
         """The effects that differ from their 'off' value."""
@@ -92,6 +95,8 @@ class HiddenEffects:
                 v[n] = float(rng.uniform(0.12, 0.5))
             elif n == "clock_offset":
                 v[n] = float(rng.choice([-1, 1]) * rng.uniform(0.03, 0.12))
+            elif n == "friction_object_robot":
+                v[n] = float(rng.uniform(0.05, 0.6))
             else:
                 raise ValueError(f"unknown hidden effect {n!r}")
         return HiddenEffects(**v)

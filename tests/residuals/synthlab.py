@@ -2,7 +2,8 @@
 
 ``lab_session(spec)`` lays out the scene with ``service.synth.make_session``'s own ``scene_layout`` (same seed streams),
 runs the lab's physics (``service.synth.sim.simulate``: impedance-driven sphere, hidden effects, rolling
-resistance, 240 Hz), and returns what the residual loop would get when tracking were perfect up to a
+resistance, 240 Hz; a hidden ``friction_object_table`` / ``friction_object_robot`` replaces the declared value in
+the physics only), and returns what the residual loop would get when tracking were perfect up to a
 noise of the given size: the object's poses at the frame times (mesh frame, plus Gaussian noise), the
 robot path as the session's ``robot.csv`` holds it (measured sphere centre with the lab's sensor noise,
 time stamps shifted by the hidden clock offset), the table height and the declared friction.
@@ -68,7 +69,9 @@ def lab_session(spec: SynthSpec, pose_noise_m: float = 5e-4, pose_noise_rad: flo
     inertia = np.asarray(obj.mesh.moment_inertia, float) * (obj.mass / obj.mesh.mass)
     sidecar = {"effects": spec.effects.active(), "friction_object_table": (
         spec.effects.friction_object_table if spec.effects.friction_object_table is not None
-        else spec.friction_object_table)}
+        else spec.friction_object_table), "friction_object_robot": (
+        spec.effects.friction_object_robot if spec.effects.friction_object_robot is not None
+        else spec.friction_object_robot)}
     return LabSession(ObservedTrajectory(t=rec.frame_t, X_WO=X), robot, table_h,
                       Friction(spec.friction_object_table, spec.friction_object_robot), obj.mass, mesh, inertia, sidecar)
 

@@ -6,7 +6,7 @@ under friction. The effects that quasi-static pushing hides show there: table fr
 mu g), linear damping (deceleration growing with the speed), a table tilt (deceleration depending on the
 heading), a CoM offset (the spin and the path of an off-centre launch), a clock offset (the launch time against
 the robot log; tested on pushing sessions in test_lab_sessions.py, on strikes in ``benchmarks/residuals.py
-strike``). Each test restricts the candidates to the true effect and the ones it is most easily confused
+strike``), an object-robot friction other than the prior (the spin and heading a glancing strike gives). Each test restricts the candidates to the true effect and the ones it is most easily confused
 with, and checks: the true effect is the one accepted, its value within 25 % of the truth, and the held-out
 rollout error of the free-sliding frames after <= 0.6 x before. A plain session accepts nothing.
 
@@ -90,6 +90,17 @@ def test_hidden_com_offset_in_strike_session():
     # the horizontal offset shows in the spin and path of every launch; its height hardly shows on a table
     assert np.linalg.norm(fitted[:2] - truth[:2]) <= 0.25 * np.linalg.norm(truth)
     assert out.model.com_O == pytest.approx(fitted)
+
+
+def test_hidden_robot_friction_in_strike_session():
+    # object-robot friction 0.5 against the declared 0.15: a glancing strike's tangential impulse through mu_OR turns
+    # the box and bends its heading; the loop fits the factor on the prior (truth 0.5 / 0.15)
+    truth = 0.5 / 0.15
+    out = _loop({"friction_object_robot": 0.5}, ("friction_robot", "friction_table", "com_offset"))
+    _check(out, "friction_robot")
+    assert abs(out.effects["friction_scale_robot"] - truth) <= 0.25 * (truth - 1.0)
+    assert out.model.friction.object_robot == pytest.approx(0.15 * out.effects["friction_scale_robot"])
+    assert out.model.friction.object_table == MU
 
 
 def test_plain_strike_session_accepts_nothing():

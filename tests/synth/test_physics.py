@@ -132,3 +132,23 @@ def test_noise_model_statistics(clean_tiny, tmp_path):
     rc = np.loadtxt(clean.session_dir / "robot.csv", delimiter=",", skiprows=1)
     rn = np.loadtxt(noisy.session_dir / "robot.csv", delimiter=",", skiprows=1)
     assert np.allclose(rc[:, 4:], rn[:, 4:]) and 1e-4 < np.std(rn[:, 1:4] - rc[:, 1:4]) < 4e-4
+
+
+def test_hidden_robot_friction_acts_and_stays_out_of_the_session(tmp_path):
+    # the true object-robot friction replaces the declared one in the physics only: a strike's glancing hit moves
+    # the box differently, while session.json still declares the prior and the sidecar has the truth
+    from service.synth import SynthSpec, make_session
+
+    base = _run("baking_box", "strike", n=60, mu=0.15)
+    same = _run("baking_box", "strike", HiddenEffects(friction_object_robot=0.15), n=60, mu=0.15)
+    assert np.array_equal(same.X_WM, base.X_WM)
+    rec = _run("baking_box", "strike", HiddenEffects(friction_object_robot=0.6), n=60, mu=0.15)
+    assert np.linalg.norm(rec.X_WM[:, :3, 3] - base.X_WM[:, :3, 3], axis=1).max() > 1e-3
+    with pytest.raises(ValueError, match="friction_object_robot"):
+        HiddenEffects(friction_object_robot=-0.1)
+    spec = SynthSpec(object="baking_box", interaction="strike", seed=1, preset="tiny", n_frames=8, noise=False,
+                     effects=HiddenEffects(friction_object_robot=0.6))
+    res = make_session(spec, tmp_path / "s")
+    assert json.loads((res.session_dir / "session.json").read_text())["friction"]["object_robot"] == 0.15
+    side = json.loads(res.sidecar_path.read_text())
+    assert side["true"]["friction_object_robot"] == 0.6 and side["sim_effects"]["friction_scale_robot"] == 4.0
