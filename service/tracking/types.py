@@ -277,6 +277,12 @@ class TrackingConfig:
     spin_graph_votes: int = 6
     spin_graph_short: int = 2  # short links per frame (the nearest earlier frames; the k-th weighs 1/k²)
     spin_graph_long_votes: int = 12  # votes a longer link needs (a false one ties distant frames)
+    # spin_solver "mixed" (spin.spin_mixed): the chain, except in fast stretches — tracked rotation above
+    # spin_mixed_rate_deg per frame over spin_mixed_span frames, widened by spin_mixed_dilate frames each side — where
+    # the frames take the graph's increments (docs/tracking.md, "Mixed spin estimate")
+    spin_mixed_rate_deg: float = 2.0
+    spin_mixed_span: int = 4
+    spin_mixed_dilate: int = 4
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -302,8 +308,14 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
         if self.spin_profile not in ("off", "mixed", "always"):
             raise ValueError(f"TrackingConfig.spin_profile must be 'off', 'mixed' or 'always', not {self.spin_profile!r}")
-        if self.spin_solver not in ("chain", "graph"):
-            raise ValueError(f"TrackingConfig.spin_solver must be 'chain' or 'graph', not {self.spin_solver!r}")
+        if self.spin_solver not in ("chain", "graph", "mixed"):
+            raise ValueError(f"TrackingConfig.spin_solver must be 'chain', 'graph' or 'mixed', not {self.spin_solver!r}")
+        if not self.spin_mixed_rate_deg >= 0:
+            raise ValueError(f"TrackingConfig.spin_mixed_rate_deg must be >= 0, not {self.spin_mixed_rate_deg!r}")
+        if not self.spin_mixed_span >= 1:
+            raise ValueError(f"TrackingConfig.spin_mixed_span must be >= 1, not {self.spin_mixed_span!r}")
+        if not self.spin_mixed_dilate >= 0:
+            raise ValueError(f"TrackingConfig.spin_mixed_dilate must be >= 0, not {self.spin_mixed_dilate!r}")
         for name in ("spin_graph_gate_deg", "spin_graph_rate_deg"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
