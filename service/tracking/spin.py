@@ -432,17 +432,20 @@ def spin_graph(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
     return _finish(solve_spin_graph(n, links, huber_deg), smooth, max_deg, lam, a, c, votes, True)
 
 
-# ---- mixed estimate: the chain, with the graph's spins over fast stretches (``spin_solver`` "mixed") ------------
+# ---- mixed estimate: the chain, with the graph's spins over fast weak stretches (``spin_solver`` "mixed") -------
 #
 # The chain pools, for each frame, the votes of frame 0 and of up to 11 earlier corrected frames: frames whose own
 # links are weak (a few votes against each of several anchors, or none against the nearest frame: development bottle
 # pivot 553, frames 163-194, 6-13 votes per pair) still get an estimate, which the graph cannot give (links need 6 or
-# 12 votes; that island drifted 10-14° off). During a fast fall the chain's recent anchors are 20-50° of view away and
-# their votes biased, and the graph's short links bridge it. A fast stretch is told by the tracked rotation alone: over
-# ``span`` frames more than ``rate_deg`` per frame (development falls 5-22°/frame, slow pivots at most 1.5°/frame: the
-# tracker's frame-to-frame jitter of 1-3° averages out over 4 frames), widened by ``dilate`` frames each side. There the
-# chain takes the graph's increments from the frame before the stretch; everywhere else it votes as before, with the
-# stretch's frames as anchors. A session without a fast stretch gets the chain alone (the graph is not computed).
+# 12 votes; that stretch drifted 10-14° off). During a fast fall with few interior matches the chain's recent anchors
+# are 20-50° of view away and their votes biased, and the graph's short links bridge it. A fast stretch is told by the
+# tracked rotation alone: over ``span`` frames more than ``rate_deg`` per frame (development falls 5-12°/frame, slow
+# pivots at most 1.7°/frame: the tracker's frame-to-frame jitter of 1-3° averages out over 4 frames), widened by
+# ``dilate`` frames each side. A fall the chain follows with many votes (development bottle topple 571: 150-350 pooled
+# votes per frame) is left to it (there the graph's short links lag the motion: 2.63° against 1.29° median); so
+# only the fast frames where the chain pooled fewer than ``fast_votes`` votes, again widened by ``dilate``, take the
+# graph's increments from the frame before their stretch, and the chain runs again with them as anchors. A session
+# without such frames gets the chain alone (the graph is not computed).
 
 
 def fast_frames(X_WO: np.ndarray, span: int = 4, rate_deg: float = 2.0, dilate: int = 4) -> np.ndarray:
@@ -454,11 +457,14 @@ def fast_frames(X_WO: np.ndarray, span: int = 4, rate_deg: float = 2.0, dilate: 
     R = X_WO[:, :3, :3]
     prev = np.maximum(np.arange(n) - span, 0)
     turn = np.degrees(rotation_angle(np.einsum("nji,njk->nik", R, R[prev])))
-    f = turn > rate_deg * span
+    return _widen(turn > rate_deg * span, dilate)
+
+
+def _widen(f: np.ndarray, d: int) -> np.ndarray:
     out = f.copy()
-    for d in range(1, dilate + 1):
-        out[d:] |= f[:-d]
-        out[:-d] |= f[d:]
+    for k in range(1, d + 1):
+        out[k:] |= f[:-k]
+        out[:-k] |= f[k:]
     return out
 
 
@@ -466,18 +472,32 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
                tau: float, tol: float, inlier_deg: float, min_votes: int, graph_votes: int, smooth: int, match,
                sep: float = 0.5, profile: str = "off", max_deg: float = 0.0, gate_deg: float = 10.0,
                n_short: int = 2, rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4,
-               fast_rate_deg: float = 2.0, fast_dilate: int = 4) -> SpinResult:
-    """Spin correction like ``spin_closure`` (same axis, cap, result): the chain, with the frames of fast stretches
-    (``fast_frames``) taking the increments of the pose graph (``spin_links``, ``solve_spin_graph``; comment above)."""
+               fast_rate_deg: float = 2.0, fast_dilate: int = 4, fast_votes: int = 60) -> SpinResult:
+    """Spin correction like ``spin_closure`` (same axis, cap, result): the chain, with the fast frames where it pooled
+    fewer than ``fast_votes`` votes (``fast_frames``; widened) taking the increments of the pose graph
+    (``spin_links``, ``solve_spin_graph``; comment above)."""
     n = len(X_WO)
     axis = find_axis(Q, N, tau, sep, profile)
-    kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match, sep=sep,
-              profile=profile, max_deg=max_deg, axis=axis)
+    memo: dict = {}
+
+    def match_once(da, db):  # the chain runs twice and the graph asks for many of the same pairs
+        key = (id(da), id(db))
+        if key not in memo:
+            memo[key] = match(da, db)
+        return memo[key]
+
+    kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match_once,
+              sep=sep, profile=profile, max_deg=max_deg, axis=axis)
     fast = fast_frames(X_WO, fast_span, fast_rate_deg, fast_dilate)
     if not axis[0] or not fast[1:].any():
         return spin_closure(feats, X_WO, Q, N, **kw)
+    first = spin_closure(feats, X_WO, Q, N, **kw)
+    weak = _widen(fast & (first.votes < fast_votes), fast_dilate)
+    weak[0] = False
+    if not weak.any():
+        return first
     _, _, a, c = axis
-    links = spin_links(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=graph_votes, match=match,
+    links = spin_links(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=graph_votes, match=match_once,
                        gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg, long_votes=long_votes)
     theta_g = solve_spin_graph(n, links) if len(links) else np.zeros(n)
-    return spin_closure(feats, X_WO, Q, N, fast=fast, theta_fast=theta_g, **kw)
+    return spin_closure(feats, X_WO, Q, N, fast=weak, theta_fast=theta_g, **kw)

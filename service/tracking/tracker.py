@@ -803,7 +803,8 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
                          profile=cfg.spin_profile, max_deg=cfg.spin_max_deg, gate_deg=cfg.spin_graph_gate_deg,
                          n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
                          long_votes=cfg.spin_graph_long_votes, fast_span=cfg.spin_mixed_span,
-                         fast_rate_deg=cfg.spin_mixed_rate_deg, fast_dilate=cfg.spin_mixed_dilate)
+                         fast_rate_deg=cfg.spin_mixed_rate_deg, fast_dilate=cfg.spin_mixed_dilate,
+                         fast_votes=cfg.spin_mixed_votes)
         X[:] = apply_spin(X, res)
         return res
     res = spin_closure(feats, X, model.Q, model.N, tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,

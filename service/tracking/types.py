@@ -279,10 +279,12 @@ class TrackingConfig:
     spin_graph_long_votes: int = 12  # votes a longer link needs (a false one ties distant frames)
     # spin_solver "mixed" (spin.spin_mixed): the chain, except in fast stretches — tracked rotation above
     # spin_mixed_rate_deg per frame over spin_mixed_span frames, widened by spin_mixed_dilate frames each side — where
-    # the frames take the graph's increments (docs/tracking.md, "Mixed spin estimate")
+    # the chain pooled fewer than spin_mixed_votes votes: those frames (widened again) take the graph's increments
+    # (docs/tracking.md, "Mixed spin estimate")
     spin_mixed_rate_deg: float = 2.0
     spin_mixed_span: int = 4
     spin_mixed_dilate: int = 4
+    spin_mixed_votes: int = 60
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -314,6 +316,8 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_mixed_rate_deg must be >= 0, not {self.spin_mixed_rate_deg!r}")
         if not self.spin_mixed_span >= 1:
             raise ValueError(f"TrackingConfig.spin_mixed_span must be >= 1, not {self.spin_mixed_span!r}")
+        if not self.spin_mixed_votes >= 0:
+            raise ValueError(f"TrackingConfig.spin_mixed_votes must be >= 0, not {self.spin_mixed_votes!r}")
         if not self.spin_mixed_dilate >= 0:
             raise ValueError(f"TrackingConfig.spin_mixed_dilate must be >= 0, not {self.spin_mixed_dilate!r}")
         for name in ("spin_graph_gate_deg", "spin_graph_rate_deg"):
