@@ -266,12 +266,14 @@ class TrackingConfig:
     sil_model_smooth: float = 0.0  # the term's model points moved onto the plane of their neighbours within this (m)
     # (model points scatter like one reading: 20-30 % of a correctly placed model lay > 2 mm in front of the reading)
 
-    # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames) or
+    # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames),
     # "graph" (spin.spin_graph: a one-parameter pose graph over frame pairs: spin_graph_short links to the nearest
     # earlier frames, plus longer links only between frames whose views differ by less than spin_graph_gate_deg and
-    # by at most spin_graph_rate_deg per frame between them; links need spin_graph_votes votes). Off: bottle topple 704
-    # 17.3° -> 6.4° median but bottle pivot 711's worst frame 7.2° -> 9.2° (docs/tracking.md, "Joint spin estimate")
-    spin_solver: str = "chain"
+    # by at most spin_graph_rate_deg per frame between them; links need spin_graph_votes votes; alone: bottle topple
+    # 704 17.3° -> 6.4° median but bottle pivot 711's worst frame 7.2° -> 9.2°, "Joint spin estimate") or "mixed"
+    # (default; spin.spin_mixed: the chain, with the graph's increments over fast stretches where the chain has few
+    # votes: 704 17.3°/22.0° -> 5.2°/7.9°, 707, 708, 711 within 0.05° median; docs/tracking.md "Mixed spin estimate")
+    spin_solver: str = "mixed"
     spin_graph_gate_deg: float = 10.0
     spin_graph_rate_deg: float = 0.5  # 0: no rate test
     spin_graph_votes: int = 6
