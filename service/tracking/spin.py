@@ -37,7 +37,9 @@ reported as unobservable and the poses are unchanged. A correction above ``max_d
 
 Joint estimate (``spin_graph``, option): θ from a one-parameter pose graph over frame pairs instead of this chain —
 short links during motion (pair measurements across a large view change are biased), long links between similar
-views; see the comment above ``spin_links``.
+views; see the comment above ``spin_links``. Mixed estimate (``spin_mixed``, the tracker's default): the chain, with
+the graph's increments over fast stretches of the tracked rotation where the chain pooled few votes; see the comment
+above ``fast_frames``.
 """
 
 from __future__ import annotations
