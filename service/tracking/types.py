@@ -266,17 +266,27 @@ class TrackingConfig:
     sil_model_smooth: float = 0.0  # the term's model points moved onto the plane of their neighbours within this (m)
     # (model points scatter like one reading: 20-30 % of a correctly placed model lay > 2 mm in front of the reading)
 
-    # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames) or
+    # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames),
     # "graph" (spin.spin_graph: a one-parameter pose graph over frame pairs: spin_graph_short links to the nearest
     # earlier frames, plus longer links only between frames whose views differ by less than spin_graph_gate_deg and
-    # by at most spin_graph_rate_deg per frame between them; links need spin_graph_votes votes). Off: bottle topple 704
-    # 17.3° -> 6.4° median but bottle pivot 711's worst frame 7.2° -> 9.2° (docs/tracking.md, "Joint spin estimate")
-    spin_solver: str = "chain"
+    # by at most spin_graph_rate_deg per frame between them; links need spin_graph_votes votes; alone: bottle topple
+    # 704 17.3° -> 6.4° median but bottle pivot 711's worst frame 7.2° -> 9.2°, "Joint spin estimate") or "mixed"
+    # (default; spin.spin_mixed: the chain, with the graph's increments over fast stretches where the chain has few
+    # votes: 704 17.3°/22.0° -> 5.2°/7.9°, 707, 708, 711 within 0.05° median; docs/tracking.md "Mixed spin estimate")
+    spin_solver: str = "mixed"
     spin_graph_gate_deg: float = 10.0
     spin_graph_rate_deg: float = 0.5  # 0: no rate test
     spin_graph_votes: int = 6
     spin_graph_short: int = 2  # short links per frame (the nearest earlier frames; the k-th weighs 1/k²)
     spin_graph_long_votes: int = 12  # votes a longer link needs (a false one ties distant frames)
+    # spin_solver "mixed" (spin.spin_mixed): the chain, except in fast stretches — tracked rotation above
+    # spin_mixed_rate_deg per frame over spin_mixed_span frames, widened by spin_mixed_dilate frames each side — where
+    # the chain pooled fewer than spin_mixed_votes votes: those frames (widened again) take the graph's increments
+    # (docs/tracking.md, "Mixed spin estimate")
+    spin_mixed_rate_deg: float = 2.0
+    spin_mixed_span: int = 4
+    spin_mixed_dilate: int = 4
+    spin_mixed_votes: int = 60
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -302,8 +312,16 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
         if self.spin_profile not in ("off", "mixed", "always"):
             raise ValueError(f"TrackingConfig.spin_profile must be 'off', 'mixed' or 'always', not {self.spin_profile!r}")
-        if self.spin_solver not in ("chain", "graph"):
-            raise ValueError(f"TrackingConfig.spin_solver must be 'chain' or 'graph', not {self.spin_solver!r}")
+        if self.spin_solver not in ("chain", "graph", "mixed"):
+            raise ValueError(f"TrackingConfig.spin_solver must be 'chain', 'graph' or 'mixed', not {self.spin_solver!r}")
+        if not self.spin_mixed_rate_deg >= 0:
+            raise ValueError(f"TrackingConfig.spin_mixed_rate_deg must be >= 0, not {self.spin_mixed_rate_deg!r}")
+        if not self.spin_mixed_span >= 1:
+            raise ValueError(f"TrackingConfig.spin_mixed_span must be >= 1, not {self.spin_mixed_span!r}")
+        if not self.spin_mixed_votes >= 0:
+            raise ValueError(f"TrackingConfig.spin_mixed_votes must be >= 0, not {self.spin_mixed_votes!r}")
+        if not self.spin_mixed_dilate >= 0:
+            raise ValueError(f"TrackingConfig.spin_mixed_dilate must be >= 0, not {self.spin_mixed_dilate!r}")
         for name in ("spin_graph_gate_deg", "spin_graph_rate_deg"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
