@@ -278,6 +278,13 @@ class TrackingConfig:
     spin_graph_short: int = 2  # short links per frame (the nearest earlier frames; the k-th weighs 1/k²)
     spin_graph_long_votes: int = 12  # votes a longer link needs (a false one ties distant frames)
 
+    # masks of the visible-geometry stage (SDF rays, contradiction test, V) trimmed by colour at their border
+    # (service.tracking.masks.trim_mask: GrabCut seeded with the mask eroded by mask_trim_px as object and the ring
+    # of mask_trim_px outside as probable background; never adds pixels). Tracking itself reads the given masks.
+    mask_trim: bool = False
+    mask_trim_px: int = 6
+    mask_trim_iters: int = 3
+
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
             raise ValueError(f"TrackingConfig.color_mode must be 'gray' or 'chroma', not {self.color_mode!r}")
@@ -332,6 +339,9 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not self.sil_weak_len > 0:
             raise ValueError(f"TrackingConfig.sil_weak_len must be > 0, not {self.sil_weak_len!r}")
+        for name in ("mask_trim_px", "mask_trim_iters"):
+            if not getattr(self, name) >= 1:
+                raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
 
