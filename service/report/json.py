@@ -74,9 +74,9 @@ def tracking_section(tracking, evaluation, reason: str | None, eval_reason: str 
     else:
         tracked = np.asarray(tracking.tracked, bool)
         out = {"frames_tracked": int(tracked.sum()), "frames_lost": int(tracking.frames_lost)}
-        removed = getattr(tracking, "mask_removed_fraction", None)
+        strip = getattr(tracking, "mask_strip_fraction", None)
         out["masks"] = {"trimmed_by_colour": bool(getattr(tracking, "masks_trimmed", False)),
-                        "removed_fraction": None if removed is None else float(removed)}
+                        "strip_fraction": None if strip is None else float(strip)}
     if evaluation is not None:
         out["vs_ground_truth"] = plain(evaluation.tracking) if evaluation.tracking is not None else None
     else:

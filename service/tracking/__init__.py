@@ -47,14 +47,14 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
     frames = pick_frames(tr.tracked, cfg.sdf_frames)
     if progress is not None:
         progress(0.6, f"visible SDF from {len(frames)} frames")
-    sv, removed = s, None  # the session as this stage reads it: masks trimmed by colour when they are off the object
+    sv, strip = s, None  # the session as this stage reads it: masks trimmed by colour when they are off the object
     if cfg.mask_trim:
         trimmed = TrimmedMasks(s, cfg.mask_trim_px, cfg.mask_trim_iters)
-        removed = trimmed.removed_fraction(frames)
-        if removed >= cfg.mask_trim_min:
+        strip = trimmed.strip_fraction(frames, cfg.mask_trim_deep_px)
+        if strip >= cfg.mask_trim_min:
             sv = trimmed
             if progress is not None:
-                progress(0.6, f"masks trimmed by colour ({100 * removed:.0f} % of their pixels look like background)")
+                progress(0.6, f"masks trimmed by colour ({100 * strip:.1f} % of their pixels look like background)")
     rays = sdf_rays(sv, tr.X_WO, frames, tr.model.tree, cfg, rng, carver=tr.carver)
     halfspace = below_table_halfspace(tr.X_WO[0], s.table_height) if cfg.below_table_outside else None
     band = None
@@ -86,6 +86,6 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
         frames_lost=int((~tr.tracked).sum()),
         spin_axis_O=tr.spin.axis_O if tr.spin is not None and tr.spin.is_revolution else None,
         spin_observable=tr.spin.observable if tr.spin is not None and tr.spin.is_revolution else None,
-        mask_removed_fraction=removed if removed is None or np.isfinite(removed) else None,
+        mask_strip_fraction=strip if strip is None or np.isfinite(strip) else None,
         masks_trimmed=sv is not s,
     )

@@ -49,6 +49,7 @@ def trim_mask(rgb: np.ndarray, mask: np.ndarray, band_px: int = 6, iters: int = 
     g[m > 0] = cv2.GC_PR_FGD
     g[core] = cv2.GC_FGD
     bgd, fgd = np.zeros((1, 65)), np.zeros((1, 65))
+    cv2.setRNGSeed(0)  # the k-means start of the colour models draws from OpenCV's global generator
     try:
         cv2.grabCut(np.ascontiguousarray(rgb[y0:y1, x0:x1]), g, None, bgd, fgd, iters, cv2.GC_INIT_WITH_MASK)
     except cv2.error:  # degenerate colour models (e.g. a uniform crop): keep the given mask
@@ -65,9 +66,10 @@ class TrimmedMasks:
     """The session as the visible-geometry stage reads it: the same data, each frame's mask trimmed by
     ``trim_mask`` (computed once per frame). Every other attribute is the session's own.
 
-    Whether to use it: exact masks lose 0.6-3 % of their pixels to the trim (the one-pixel edge where colours
-    blend), a mask a few pixels off the object 10-25 % (the strip of background it covers); ``run`` uses the trimmed
-    masks only when ``removed_fraction`` over the SDF frames reaches ``TrackingConfig.mask_trim_min``."""
+    Whether to use it: the trim takes the rim of exact masks where colours blend (0.6-6 % of the pixels, the most on
+    a round body's shaded limb), but almost nothing deeper than 3 px (<= 0.3 %); a mask a few pixels off the object
+    loses the strip of background it covers, 4-8 % of its pixels deeper than 3 px. ``run`` uses the trimmed masks
+    only when ``strip_fraction`` over the SDF frames reaches ``TrackingConfig.mask_trim_min``."""
 
     def __init__(self, session, band_px: int, iters: int):
         self._session = session
@@ -82,14 +84,17 @@ class TrimmedMasks:
             self._cache[i] = trim_mask(s.rgb(i), s.mask(i), self._band_px, self._iters)
         return self._cache[i]
 
-    def removed_fraction(self, frames) -> float:
-        """Median over ``frames`` (with a non-empty given mask) of the fraction of mask pixels the trim removes
-        (nan without such frames)."""
+    def strip_fraction(self, frames, deep_px: int) -> float:
+        """Median over ``frames`` (with a non-empty given mask) of the fraction of mask pixels the trim removes at
+        least ``deep_px`` inside the given mask (Euclidean distance to its outside; nan without such frames)."""
+        import cv2
+
         fr = []
         for i in frames:
             given = self._session.mask(int(i))
             if given.any():
-                fr.append(1.0 - self.mask(int(i)).sum() / given.sum())
+                inside = cv2.distanceTransform(given.astype(np.uint8), cv2.DIST_L2, 3)
+                fr.append(float((given & ~self.mask(int(i)) & (inside >= deep_px)).sum() / given.sum()))
         return float(np.median(fr)) if fr else float("nan")
 
     def __getattr__(self, name):

@@ -75,7 +75,7 @@ def test_trimmed_masks_view():
     assert a.sum() < given.sum()
 
 
-@pytest.mark.parametrize("field,value", [("mask_trim_px", 0), ("mask_trim_iters", 0), ("mask_trim_min", 1.5)])
+@pytest.mark.parametrize("field,value", [("mask_trim_px", 0), ("mask_trim_iters", 0), ("mask_trim_deep_px", 0), ("mask_trim_min", 1.5)])
 def test_config_refuses_bad_values(field, value):
     with pytest.raises(ValueError, match=field):
         TrackingConfig(**{field: value})
@@ -86,9 +86,9 @@ def test_run_trims_only_misregistered_masks_and_only_for_the_visible_geometry(ti
     about 7 px on the real video at 640 x 480) lose more, and when trimmed, the poses stay those of the given masks
     (tracking reads them) while the visible geometry is built from the trimmed ones."""
     s = tiny_push_session(24)
-    cfg = replace(TrackingConfig.fast(), mask_trim_px=3)
+    cfg = replace(TrackingConfig.fast(), mask_trim_px=3, mask_trim_deep_px=2)
     exact = run(TrackingInputs(s), cfg)
-    assert not exact.masks_trimmed and exact.mask_removed_fraction < cfg.mask_trim_min
+    assert not exact.masks_trimmed and exact.mask_strip_fraction < cfg.mask_trim_min
     d = tmp_path / "s"
     shutil.copytree(s.root, d)
     for f in sorted((d / "masks").glob("*.png")):
@@ -96,9 +96,9 @@ def test_run_trims_only_misregistered_masks_and_only_for_the_visible_geometry(ti
         cv2.imwrite(str(f), np.roll(m, 3, axis=1))
     shifted = load_session(d, "test")
     off = run(TrackingInputs(shifted), replace(cfg, mask_trim=False))
-    assert off.mask_removed_fraction is None and not off.masks_trimmed
+    assert off.mask_strip_fraction is None and not off.masks_trimmed
     on = run(TrackingInputs(shifted), replace(cfg, mask_trim_min=0.0))
-    assert on.masks_trimmed and on.mask_removed_fraction > 2 * exact.mask_removed_fraction
+    assert on.masks_trimmed and on.mask_strip_fraction > 2 * exact.mask_strip_fraction
     np.testing.assert_array_equal(on.X_WO, off.X_WO)
     assert on.visible_mesh.vertices.shape != off.visible_mesh.vertices.shape or not np.allclose(
         on.visible_mesh.vertices, off.visible_mesh.vertices)
