@@ -117,6 +117,11 @@ def _model(r: dict) -> str:
 def _tracking(r: dict) -> str:
     t = r.get("tracking") or {}
     rows = [("frames tracked", _fmt(t.get("frames_tracked"), digits=0)), ("frames lost", _fmt(t.get("frames_lost"), digits=0))]
+    masks = t.get("masks") or {}
+    if masks.get("strip_fraction") is not None:
+        rows.append(("mask pixels inside the mask's rim that look like background (median)",
+                     f"{100 * masks['strip_fraction']:.1f} %"
+                     + (": masks trimmed by colour for the geometry" if masks.get("trimmed_by_colour") else "")))
     vs = t.get("vs_ground_truth")
     body = _kv_table(rows)
     if vs is None:

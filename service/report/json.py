@@ -74,6 +74,9 @@ def tracking_section(tracking, evaluation, reason: str | None, eval_reason: str 
     else:
         tracked = np.asarray(tracking.tracked, bool)
         out = {"frames_tracked": int(tracked.sum()), "frames_lost": int(tracking.frames_lost)}
+        strip = getattr(tracking, "mask_strip_fraction", None)
+        out["masks"] = {"trimmed_by_colour": bool(getattr(tracking, "masks_trimmed", False)),
+                        "strip_fraction": None if strip is None else float(strip)}
     if evaluation is not None:
         out["vs_ground_truth"] = plain(evaluation.tracking) if evaluation.tracking is not None else None
     else:

@@ -70,6 +70,8 @@ def _validate(spec: SynthSpec) -> None:
     if w < 32 or h < 24 or n < 2 or fps <= 0:
         raise ValueError(f"frame geometry {w}x{h}, {n} frames at {fps} Hz is too small")
     spec.occlusion_target()
+    if not isinstance(spec.mask_offset_px, int) or not abs(spec.mask_offset_px) < w // 4:
+        raise ValueError(f"mask_offset_px {spec.mask_offset_px!r}: expected an integer with |value| < {w // 4} (a quarter of the width)")
 
 
 def _contact_intervals(t: np.ndarray, c: np.ndarray, max_gap: int = 2, min_len: int = 2) -> list[tuple[float, float]]:
@@ -146,6 +148,8 @@ def make_session(spec: SynthSpec, out_dir: Path, *, progress=None) -> SynthResul
                 z = _noise.noisy_depth(z, rng_noise)
                 mask = _noise.noisy_mask(mask, rng_noise)
                 rgb = _noise.noisy_rgb(rgb, rng_noise)
+            if spec.mask_offset_px:
+                mask, z = _noise.misregister_mask(mask, z, spec.mask_offset_px)
             d16 = np.clip(np.round(z / DEPTH_SCALE), 0, 65535).astype(np.uint16)
             stem = f"{i:06d}"
             bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)

@@ -88,6 +88,26 @@ def noisy_mask(mask: np.ndarray, rng: np.random.Generator, n_patches: int = 4) -
     return out.astype(bool)
 
 
+def misregister_mask(mask: np.ndarray, z: np.ndarray, offset_px: int) -> tuple[np.ndarray, np.ndarray]:
+    """(mask, z) with the mask (H,W) bool shifted ``offset_px`` along x and the object's depth z (H,W) m copied
+    into the strip of background the shifted mask covers (from the object pixel ``offset_px`` before it)."""
+    if offset_px == 0:
+        return mask, z
+    shifted = np.zeros_like(mask)
+    src = np.where(mask, z, 0.0)
+    bled = np.zeros_like(z)
+    if offset_px > 0:
+        shifted[:, offset_px:] = mask[:, :-offset_px]
+        bled[:, offset_px:] = src[:, :-offset_px]
+    else:
+        shifted[:, :offset_px] = mask[:, -offset_px:]
+        bled[:, :offset_px] = src[:, -offset_px:]
+    strip = shifted & ~mask & (bled > 0)
+    z = z.copy()
+    z[strip] = bled[strip]
+    return shifted, z
+
+
 def noisy_rgb(rgb: np.ndarray, rng: np.random.Generator, sigma: float = 2.0) -> np.ndarray:
     n = rng.standard_normal(rgb.shape, dtype=np.float32) * np.float32(sigma)
     return np.clip(rgb.astype(np.float32) + n, 0, 255).astype(np.uint8)

@@ -130,6 +130,10 @@ class SynthSpec:
     friction_object_robot: float = 0.15
     rolling_friction: float = 0.0005  # m, rolling resistance object-table (base physics, not declared)
     physics_hz: float = 240.0
+    # segmentation misregistered with the colour image (the real cube video's mask sits ~7 px sideways): the mask is
+    # shifted this many px along the image x axis (sign = direction) and the object's depth bleeds into the strip of
+    # background it covers (a stereo sensor's edge fattening); 0: masks and depth as rendered
+    mask_offset_px: int = 0
 
     def session_name(self) -> str:
         return self.name or f"{self.object}_{self.interaction}_{self.seed:03d}"

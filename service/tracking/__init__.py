@@ -19,6 +19,7 @@ import numpy as np
 
 from service.errors import StageFailed
 from service.sdf import extract_mesh, fit_sdf
+from service.tracking.masks import TrimmedMasks
 from service.tracking.tracker import track
 from service.tracking.types import TrackingConfig, TrackingInputs, TrackingOutputs
 from service.tracking.velocity import velocities
@@ -46,21 +47,29 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
     frames = pick_frames(tr.tracked, cfg.sdf_frames)
     if progress is not None:
         progress(0.6, f"visible SDF from {len(frames)} frames")
-    rays = sdf_rays(s, tr.X_WO, frames, tr.model.tree, cfg, rng, carver=tr.carver)
+    sv, strip = s, None  # the session as this stage reads it: masks trimmed by colour when they are off the object
+    if cfg.mask_trim:
+        trimmed = TrimmedMasks(s, cfg.mask_trim_px, cfg.mask_trim_iters)
+        strip = trimmed.strip_fraction(frames, cfg.mask_trim_deep_px)
+        if strip >= cfg.mask_trim_min:
+            sv = trimmed
+            if progress is not None:
+                progress(0.6, f"masks trimmed by colour ({100 * strip:.1f} % of their pixels look like background)")
+    rays = sdf_rays(sv, tr.X_WO, frames, tr.model.tree, cfg, rng, carver=tr.carver)
     halfspace = below_table_halfspace(tr.X_WO[0], s.table_height) if cfg.below_table_outside else None
     band = None
     ev_frames = pick_frames(tr.tracked, cfg.sdf_band_frames) if cfg.sdf_band_frames else frames
     if cfg.sdf_drop_contradicted:
-        rays = drop_contradicted(s, tr.X_WO, ev_frames, rays, cfg)
+        rays = drop_contradicted(sv, tr.X_WO, ev_frames, rays, cfg)
     if cfg.sdf_band_evidence:
-        band = band_depth(s, tr.X_WO, ev_frames, rays, cfg)
+        band = band_depth(sv, tr.X_WO, ev_frames, rays, cfg)
     init = carved_init(rays, cfg.sdf, tr.carver, cfg.sdf_carve_value) if cfg.sdf_carve_init and tr.carver is not None else None
     grid = fit_sdf(rays, cfg.sdf, init=init, halfspace_O=halfspace, progress=rep(0.6, 0.95), band_back=band)
     mesh = extract_mesh(grid)
     if mesh.is_empty:
         raise StageFailed("tracking", "the visible SDF has no zero level set (no object surface reconstructed)")
     vis_frames = pick_frames(tr.tracked, cfg.visible_frames)
-    V = visible_points(s, tr.X_WO, vis_frames, mesh, cfg, rng)
+    V = visible_points(sv, tr.X_WO, vis_frames, mesh, cfg, rng)
     if halfspace is not None and len(V):
         V = V[V @ halfspace[:3] + halfspace[3] <= 1e-6]
     if progress is not None:
@@ -77,4 +86,6 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
         frames_lost=int((~tr.tracked).sum()),
         spin_axis_O=tr.spin.axis_O if tr.spin is not None and tr.spin.is_revolution else None,
         spin_observable=tr.spin.observable if tr.spin is not None and tr.spin.is_revolution else None,
+        mask_strip_fraction=strip if strip is None or np.isfinite(strip) else None,
+        masks_trimmed=sv is not s,
     )

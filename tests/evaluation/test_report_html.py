@@ -31,7 +31,7 @@ REPORT = {
     "timings_s": {"ingest": 1.0, "tracking": 2.0, "total": 3.0},
     "model": {"mass_kg": 0.3, "mass_declared": False, "com_O": [0, 0, 0.01], "inertia_O": np.eye(3).tolist(),
               "friction": {"object_table": 0.26, "object_robot": 0.15}, "effects": {"restitution": 0.4}},
-    "tracking": {"frames_tracked": 40, "frames_lost": 0,
+    "tracking": {"frames_tracked": 40, "frames_lost": 0, "masks": {"trimmed_by_colour": True, "strip_fraction": 0.075},
                  "vs_ground_truth": {"rot_err_deg_median": 0.5, "trans_err_m_median": 0.002}},
     "geometry": {"vision_only": {"chamfer_m": 0.02, "iou": 0.5}, "physics_only": {"chamfer_m": None, "iou": None,
                                                                                     "reason": "the physics_only mesh is empty"},
@@ -70,6 +70,7 @@ def test_plots_and_html_with_every_section(tmp_path):
     assert "the physics_only mesh is empty" in text and "no ground_truth/contacts.csv" in text
     assert "1.000" in text  # fused chamfer 0.01 m shown as 1.000 cm
     assert "default mass" in text and "restitution" in text
+    assert "7.5 %: masks trimmed by colour" in text
 
 
 def test_embedded_figures_need_no_files(tmp_path):

@@ -40,6 +40,7 @@ def test_every_stage_runs_and_the_bundle_is_complete(run_once):
     report = json.loads((out / "report.json").read_text())
     assert missing_keys(report) == []
     assert report["tracking"]["frames_tracked"] > 0
+    assert set(report["tracking"]["masks"]) == {"trimmed_by_colour", "strip_fraction"}
     for method in ("vision_only", "physics_only", "fused"):
         assert report["geometry"][method]["chamfer_m"] is not None
         assert report["dynamics"][method]["pos_err_m"] is not None
