@@ -650,6 +650,10 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
     try:
         rot_scale = cfg.rot_scale_m if cfg.rot_scale_m is not None else object_radius(model)
         ev = Evaluator(simulate, inputs.table_height, rot_scale)
+        if cfg.folds > 1:  # K-fold cross-fitting of the held-out test (service/residuals/crossfit.py)
+            from service.residuals.crossfit import crossfit
+
+            return crossfit(inputs, cfg, model, names, nuis_names, stats, segs, ev, report)
         rng = np.random.default_rng(cfg.seed + 1)
 
         base_effects = dict(model.effects)
