@@ -14,7 +14,8 @@ inertia m s²/6), table at z = 0, no robot. Tosses are split into training and h
     python benchmarks/residuals.py strike [--seeds 601 602] [--cases none friction tilt ...] [--candidates ...]
         [--true-split] [--pose-noise 0]
 
-Every subcommand takes ``--unit-statistic mean`` to judge with the earlier held-out test over units (percentile
+Every subcommand takes ``--folds K`` (K-fold cross-fitting of the held-out test, docs/residuals.md §4; 1 = one
+split) and ``--unit-statistic mean`` to judge with the earlier held-out test over units (percentile
 bootstrap of the mean per-unit difference in metres) instead of the current one (Student-t bound on the mean
 of per-unit relative improvements; docs/residuals.md §4, rule 2).
 
@@ -105,7 +106,7 @@ def real(args) -> None:
     cfg = ResidualConfig(
         seed=args.seed, candidates=tuple(args.candidates), max_train_segments=args.train_segments,
         max_heldout_segments=args.heldout_segments, fit_maxiter=args.fit_maxiter, max_effects=args.max_effects,
-        unit_statistic=args.unit_statistic,
+        unit_statistic=args.unit_statistic, folds=args.folds,
     )
     t0 = time.time()
     out = run(ResidualInputs(cube_model(), trajs, 0.0), cfg,
@@ -131,7 +132,7 @@ def synthetic(args) -> None:
     cands = ("gravity_scale", "restitution", "table_offset", "linear_damping", "angular_damping")
     # 12 training blocks and 24 evaluations per fit, as tests/residuals/test_recover_angular_damping.py
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, max_train_segments=12, fit_maxiter=24,
-                              unit_statistic=args.unit_statistic)
+                              unit_statistic=args.unit_statistic, folds=args.folds)
     import resource
 
     rows = []
@@ -170,7 +171,7 @@ def synthetic(args) -> None:
     for seed in args.seeds[:2]:
         tr, path = push_session(base, {"friction_object_table": 0.5}, seed=seed, noise_m=3e-4, strokes=12)
         pcfg = dataclasses.replace(ResidualConfig.fast(), candidates=("friction_table", "clock_offset", "restitution"),
-                                   segment_s=0.5, seed=seed, unit_statistic=args.unit_statistic)
+                                   segment_s=0.5, seed=seed, unit_statistic=args.unit_statistic, folds=args.folds)
         out = run(ResidualInputs(base, (tr,), 0.0, robot=(path,)), pcfg)
         c = {c.effect: c for c in out.candidates}["friction_table"]
         print(f"pushing, hidden friction_object_table 0.5, seed {seed}: accepted {list(out.accepted)}; "
@@ -201,7 +202,8 @@ def lab(args) -> None:
 
     cands = ("clock_offset", "friction_table", "table_tilt", "linear_damping", "restitution")
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, max_train_segments=10,
-                              nuisance=() if args.exact_model else NUISANCE_LEARNED, unit_statistic=args.unit_statistic)
+                              nuisance=() if args.exact_model else NUISANCE_LEARNED, unit_statistic=args.unit_statistic,
+                              folds=args.folds)
     for case in args.cases:
         hidden, name, key = LAB_CASES[case]
         for seed in args.seeds:
@@ -321,7 +323,7 @@ def strike(args) -> None:
             cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, seed=seed,
                                       fit_maxiter=24, max_train_segments=10,
                                       nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
-                                      unit_statistic=args.unit_statistic)
+                                      unit_statistic=args.unit_statistic, folds=args.folds)
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
             if args.true_split:
@@ -412,6 +414,9 @@ def main() -> None:
                         help="held-out test over units (docs/residuals.md §4 rule 2): relative = bound on the mean of "
                              "clipped per-unit relative improvements; mean = the earlier rule (mean of per-unit "
                              "differences in metres)")
+        sp.add_argument("--folds", type=int, default=1,
+                        help="held-out test by K-fold cross-fitting (docs/residuals.md §4): 1 = one seeded split "
+                             "(half the units held out), K >= 2 = every unit held out once, rules on the union")
     args = ap.parse_args()
     print("command:", " ".join(["python", *sys.argv]))
     {"real": real, "synthetic": synthetic, "lab": lab, "strike": strike}[args.cmd](args)

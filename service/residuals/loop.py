@@ -37,7 +37,9 @@ rest is compensating for something else); (f) a directional effect (table tilt) 
 held-out blocks moving downhill and blocks moving uphill both improve (``direction_check``). The passing candidate with the largest fall of the error
 over all held-out frames is accepted (a common basis: an effect judged on many frames, e.g. a near-zero
 friction letting a mistimed push slide, must not outrank the one that explains them); the round repeats
-until none passes or ``max_effects`` are accepted.
+until none passes or ``max_effects`` are accepted. With ``ResidualConfig.folds`` = K >= 2 the held-out blocks are
+those of K-fold cross-fitting instead of one split (``service/residuals/crossfit.py``): every unit held out once,
+the fits of its fold never see it, the rules applied to the union of the folds.
 
 Nuisance refit (learned models): a model learned from the same session carries its own errors
 (geometry a few millimetres to centimetres too large, inertia, CoM), which dominate the rollout error and
@@ -650,6 +652,10 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
     try:
         rot_scale = cfg.rot_scale_m if cfg.rot_scale_m is not None else object_radius(model)
         ev = Evaluator(simulate, inputs.table_height, rot_scale)
+        if cfg.folds > 1:  # K-fold cross-fitting of the held-out test (service/residuals/crossfit.py)
+            from service.residuals.crossfit import crossfit
+
+            return crossfit(inputs, cfg, model, names, nuis_names, stats, segs, ev, report)
         rng = np.random.default_rng(cfg.seed + 1)
 
         base_effects = dict(model.effects)

@@ -145,6 +145,10 @@ class ResidualConfig:
     launch_lead: int = 2  # frames of rest at the start of a launch block
     launch_max_s: float = 1.0  # longest launch block, s
     robot_smooth_s: float = 0.04  # Savitzky-Golay window on the measured sphere path before the rollouts, s (0: off)
+    # K-fold cross-fitting of the held-out test (docs/residuals.md §4): 1 = one seeded split (half the units held
+    # out); K >= 2 = every unit (toss, or block of one session) held out exactly once, the corrections and the
+    # candidates fitted on the complement of each fold, rules 1-7 applied to the union of the folds' held-out errors
+    folds: int = 1
 
     def __post_init__(self) -> None:
         for name in ("max_base_error_rel_learned", "launch_speed", "launch_max_s"):
@@ -153,6 +157,8 @@ class ResidualConfig:
         for name in ("launch_rest_speed", "launch_lead", "robot_smooth_s"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"ResidualConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        if not (isinstance(self.folds, int) and self.folds >= 1):
+            raise ValueError(f"ResidualConfig.folds must be an integer >= 1, not {self.folds!r}")
         if self.unit_statistic not in ("relative", "mean"):
             raise ValueError(f"ResidualConfig.unit_statistic must be 'relative' or 'mean', not {self.unit_statistic!r}")
         if not self.launch_rest_speed < self.launch_speed:

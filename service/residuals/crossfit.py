@@ -1,0 +1,384 @@
+"""K-fold cross-fitting of the residual loop's held-out test (``ResidualConfig.folds`` = K >= 2).
+
+The units (whole trajectories when >= 4 have blocks, else the time blocks of the session) are shuffled (seeded)
+and dealt into K folds, so every unit is held out exactly once. For fold f the nuisance corrections (§3b), each
+candidate θ_f and the joint refit are fitted on the blocks of the other K − 1 folds only, and fold f's held-out
+blocks are rolled out with fold f's models; the acceptance rules 1–7 (``loop._decide``, rule 6 on all frames,
+bounds, resolution, direction) are applied once to the union over folds of the held-out block errors before /
+after, with units pooled over folds (U and the number of held-out blocks cover all units instead of
+``heldout_fraction`` of them: twice one split's at the default 0.5). No held-out error comes from a fit that saw
+its unit.
+
+Greedy rounds: each fold keeps its own current model (its corrected base + the accepted effects with its own
+θ_f); a candidate of round r is fitted on top of that fold's model. The parameter reported for an accepted
+effect (``ResidualOutputs.effects``, the output model and URDF) is the mean of the fold values θ̄ = mean_f θ_f:
+every θ_f is what was tested, and with the training subsample cap (``max_train_segments``) the K fits together
+use K times the training blocks one more fit on all units would, so the mean is the lower-variance single value
+at no extra rollout. Rules 4 (resolution) and 7 (direction) are checked on θ̄, rule 5 (bound) on every θ_f (one
+fold pinned to a bound is compensation). Nuisance corrections are reported as their fold mean, never applied to
+the output model (as with one split).
+
+Cost: K fits per candidate per round (each on at most ``max_train_segments`` blocks, as one split's) and every
+block rolled out once per candidate as held-out: ≈ K × one split's rollouts (2× for K = 2).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from service.errors import InvalidInput
+from service.model import ObjectModel
+from service.residuals.effects import REGISTRY, apply_effects, at_bound, fold_into_model, is_negligible
+from service.residuals.modes import classify, collision_vertices
+from service.residuals.types import MODES, EffectCandidate, ResidualConfig, ResidualInputs, ResidualOutputs
+
+
+def fold_segments(segs: list, cfg: ResidualConfig) -> tuple[list[tuple[list, list]], list[np.ndarray]]:
+    """Seeded K-fold partition: [(train_f, held_f)], [units_f] with units global ids (trajectory index, or the
+    block's index in ``segs`` for one session). Every unit is in exactly one held-out fold; each fold's held-out
+    list is capped at ``max_heldout_segments`` by random subsampling (as one split's)."""
+    rng = np.random.default_rng(cfg.seed)
+    k = cfg.folds
+    by_traj = len({s.traj for s in segs}) >= 4
+    if by_traj:
+        trajs = sorted({s.traj for s in segs})
+        if len(trajs) < k:
+            raise InvalidInput("ResidualConfig.folds", f"{k} folds need >= {k} trajectories with blocks, got {len(trajs)}")
+        perm = rng.permutation(trajs)
+        fold_of = {int(t): i % k for i, t in enumerate(perm)}
+        fid = np.array([fold_of[s.traj] for s in segs])
+        uid = np.array([s.traj for s in segs])
+    else:
+        if len(segs) < k:
+            raise InvalidInput("ResidualConfig.folds", f"{k} folds need >= {k} rollout blocks, got {len(segs)}")
+        perm = rng.permutation(len(segs))
+        fid = np.empty(len(segs), int)
+        fid[perm] = np.arange(len(segs)) % k
+        uid = np.arange(len(segs))
+    parts, units = [], []
+    for f in range(k):
+        held_i = np.flatnonzero(fid == f)
+        train = [segs[i] for i in np.flatnonzero(fid != f)]
+        if len(held_i) > cfg.max_heldout_segments:
+            held_i = np.sort(rng.choice(held_i, cfg.max_heldout_segments, replace=False))
+        parts.append((train, [segs[i] for i in held_i]))
+        units.append(uid[held_i])
+    return parts, units
+
+
+@dataclass
+class _Fold:
+    """One fold's state: its training pool and held-out blocks, its corrected base and accepted effects."""
+
+    train: list
+    held: list
+    units: np.ndarray
+    model: ObjectModel = None
+    base_effects: dict = field(default_factory=dict)
+    nuis_fix: dict = field(default_factory=dict)
+    tr_n: list = field(default_factory=list)
+    chosen: dict = field(default_factory=dict)
+    held_frames0: list = field(default_factory=list)
+    cur_frames: list = field(default_factory=list)
+    nuisance: dict = field(default_factory=dict)
+
+
+def _by_mode_groups(ev, groups) -> tuple[dict, dict]:
+    """``Evaluator.by_mode`` over several (model, effects, segs) groups pooled frame by frame."""
+    P, R, M = [], [], []
+    for model, effects, segs in groups:
+        for s in segs:
+            pos, rot = ev.frame_errors(model, effects, s)
+            P.append(pos[s.tracked])
+            R.append(rot[s.tracked])
+            M.append(s.mode[s.tracked])
+    P, R, M = np.concatenate(P), np.concatenate(R), np.concatenate(M)
+    table = {}
+    for i, name in enumerate(MODES):
+        sel = M == i
+        table[name] = {
+            "frames": int(sel.sum()),
+            "pos_err_m": float(P[sel].mean()) if sel.any() else None,
+            "rot_err_deg": float(np.degrees(R[sel].mean())) if sel.any() else None,
+        }
+    return {"pos_err_m": float(P.mean()), "rot_err_deg": float(np.degrees(R.mean()))}, table
+
+
+def _flat(names_theta: dict) -> dict[str, float]:
+    return {k: float(v) for n, th in names_theta.items() for k, v in zip(REGISTRY[n].params, th)}
+
+
+def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, names: list[str], nuis_names: list[str],
+             stats: dict, segs: list, ev, report) -> ResidualOutputs:
+    """The greedy loop of ``loop.run`` with K-fold cross-fitting (module docstring). ``model`` is the input model,
+    ``segs`` every rollout block, ``ev`` the Evaluator."""
+    from service.residuals.loop import (
+        _acts_on, _carried_keys, _decide, _fit, _fit_nuisance, _refine_joint, direction_check, effect_mask,
+        reduce_blocks,
+    )
+
+    K = cfg.folds
+    parts, units = fold_segments(segs, cfg)
+    folds = [_Fold(tr, ho, u) for (tr, ho), u in zip(parts, units)]
+    input_model = model
+    input_effects = dict(model.effects)
+    rng = np.random.default_rng(cfg.seed + 1)
+    for f, fd in enumerate(folds):
+        fd.model, fd.base_effects = input_model, dict(input_effects)
+        fd.held_frames0 = ev.frame_scalar(input_model, input_effects, fd.held)
+        fd.nuisance = {}
+        if nuis_names:
+            report(0.02 + 0.03 * f / K, f"fold {f + 1}/{K}: refitting the model's own uncertain parameters (nuisance)")
+            tr_n = list(fd.train)
+            if len(tr_n) > cfg.max_nuisance_segments:
+                sub = np.random.default_rng(cfg.seed + 99 + 1000 * f).choice(len(tr_n), cfg.max_nuisance_segments, replace=False)
+                tr_n = [tr_n[i] for i in sorted(sub)]
+            fd.tr_n = tr_n
+            fix, e0, e1 = _fit_nuisance(nuis_names, input_model, dict(input_effects), ev, tr_n, cfg)
+            fd.nuis_fix = dict(fix)
+            fd.nuisance = {"train_error_before": e0, "train_error_after": e1, "train_blocks": len(tr_n)}
+            if fix:
+                fd.model, fix_sim = apply_effects(input_model, fix)
+                fd.base_effects = {**input_effects, **fix_sim}
+                th_off = float(fix_sim.get("table_offset", 0.0))
+                modes = [
+                    classify(fd.model, tr, inputs.table_height + th_off, inputs.robot[k] if inputs.robot is not None else None, cfg)
+                    for k, tr in enumerate(inputs.trajectories)
+                ]
+                fd.train = [dataclasses.replace(sg, mode=modes[sg.traj][sg.start:sg.stop]) for sg in fd.train]
+                fd.held = [dataclasses.replace(sg, mode=modes[sg.traj][sg.start:sg.stop]) for sg in fd.held]
+        fd.cur_frames = ev.frame_scalar(fd.model, fd.base_effects, fd.held) if fd.nuis_fix else fd.held_frames0
+        fd.nuisance["corrections"] = _flat(fd.nuis_fix)
+
+    def corrections_mean() -> dict[str, float]:
+        keys = sorted({k for fd in folds for k in _flat(fd.nuis_fix)})
+        out = {}
+        for k in keys:
+            vals = [_flat(fd.nuis_fix)[k] for fd in folds if k in _flat(fd.nuis_fix)]
+            out[k] = float(np.mean(vals))
+        return out
+
+    def union_all(frames_per_fold) -> np.ndarray:
+        return np.concatenate([reduce_blocks(fr) for fr in frames_per_fold])
+
+    base_err = float(union_all([fd.cur_frames for fd in folds]).mean())
+    nuisance_report: dict = {"names": nuis_names, "heldout_error_after": base_err, "corrections": corrections_mean(),
+                             "folds": [dict(fd.nuisance) for fd in folds]}
+    pinned = sorted({n for fd in folds for n, th in fd.nuis_fix.items() if at_bound(REGISTRY[n], th)})
+    why_not = None
+    max_rel = cfg.max_base_error_rel_learned if nuis_names else cfg.max_base_error_rel
+    any_fix = any(fd.nuis_fix for fd in folds)
+    ref_model = next((fd.model for fd in folds if fd.nuis_fix), input_model)
+    Vc = collision_vertices(ref_model)
+    Vc = Vc - Vc.mean(0)
+    size = 0.5 * float(np.linalg.norm(np.ptp(Vc @ np.linalg.svd(Vc, full_matrices=False)[2].T, axis=0)))
+    if base_err > max_rel * size:
+        why_not = (f"the {'corrected ' if any_fix else ''}model's held-out error {base_err * 1e3:.1f} mm exceeds "
+                   f"{max_rel:.0%} of the object size ({size * 1e3:.0f} mm, half its box diagonal)")
+    elif pinned:
+        why_not = f"the model's corrections {pinned} went to their bounds"
+    nuisance_report["model_adequate"] = why_not is None
+
+    final: dict[str, EffectCandidate] = {}
+    chosen_rep: dict[str, tuple] = {}
+    history: list[dict] = []
+    remaining = list(names)
+    n_rounds = min(cfg.max_effects, len(names))
+    if why_not is not None:
+        n_rounds = 0
+        for name in names:
+            final[name] = EffectCandidate(
+                name, {}, float("nan"), float("nan"), False,
+                f"not judged: {why_not}; the model does not explain the motion well enough to name a missing effect",
+                round=0)
+    for rnd in range(n_rounds):
+        round_res = []
+        cur = [apply_effects(fd.model, fd.chosen) for fd in folds]
+        for ci, name in enumerate(remaining):
+            report((rnd + ci / max(len(remaining), 1)) / max(n_rounds, 1) * 0.9, f"round {rnd + 1}: fitting {name} ({K} folds)")
+            eff = REGISTRY[name]
+            sig = float(eff.signature(stats))
+            guess = eff.guess(stats, input_model)
+            tr_e, ho_idx = [], []
+            for f, fd in enumerate(folds):
+                t = [sg for sg in fd.train if _acts_on(sg, eff)]
+                if len(t) > cfg.max_train_segments:
+                    sub = np.random.default_rng(cfg.seed + 7 * rnd + ci + 1000 * f).choice(len(t), cfg.max_train_segments, replace=False)
+                    t = [t[i] for i in sorted(sub)]
+                tr_e.append(t)
+                ho_idx.append(np.array([i for i, sg in enumerate(fd.held) if _acts_on(sg, eff)], int))
+            if min(len(t) for t in tr_e) < 2 or sum(len(h) for h in ho_idx) < 2:
+                final[name] = EffectCandidate(
+                    name, {}, float("nan"), float("nan"), False,
+                    f"rejected: too few blocks in its modes {eff.modes} (train {[len(t) for t in tr_e]} per fold, "
+                    f"held-out {sum(len(h) for h in ho_idx)})", signature=sig, round=rnd)
+                continue
+            per = []  # per fold: dict of figures
+            for f, fd in enumerate(folds):
+                cm, cs = cur[f]
+                tr_masks = [effect_mask(sg, eff) for sg in tr_e[f]]
+                ho_masks = [effect_mask(fd.held[i], eff) for i in ho_idx[f]]
+                train_before = float(ev.errors(cm, {**fd.base_effects, **cs}, tr_e[f], tr_masks).mean())
+                theta, e_train = _fit(eff, guess, fd.model, fd.base_effects, fd.chosen, ev, tr_e[f], cfg)
+                m_after, s_after = apply_effects(fd.model, {**fd.chosen, name: theta})
+                after_frames = ev.frame_scalar(m_after, {**fd.base_effects, **s_after}, fd.held)
+                per.append({"theta": theta, "e_train": e_train, "train_before": train_before, "tr_masks": tr_masks,
+                            "ho_masks": ho_masks, "after_frames": after_frames, "nuis": fd.nuis_fix, "refit": False})
+
+            def gather():
+                rb = np.concatenate([reduce_blocks([fd.cur_frames[i] for i in ho_idx[f]], per[f]["ho_masks"])
+                                     for f, fd in enumerate(folds)])
+                ra = np.concatenate([reduce_blocks([per[f]["after_frames"][i] for i in ho_idx[f]], per[f]["ho_masks"])
+                                     for f in range(K)])
+                u = np.concatenate([fd.units[ho_idx[f]] for f, fd in enumerate(folds)])
+                ab = union_all([fd.cur_frames for fd in folds])
+                aa = union_all([p["after_frames"] for p in per])
+                return rb, ra, u, ab, aa
+
+            rel_before, rel_after, u_all, all_before, all_after = gather()
+            ok, why, rel = _decide(rel_before, rel_after, u_all, cfg, rng)
+            helps = [p["e_train"] < (1.0 - 0.5 * cfg.min_rel_improvement) * p["train_before"]
+                     and not is_negligible(eff, p["theta"], fd.model) for p, fd in zip(per, folds)]
+            if any(fd.nuis_fix for fd in folds) and (ok or any(helps)):
+                for f, fd in enumerate(folds):
+                    if not fd.nuis_fix:
+                        continue
+                    cand_nuis, theta = _refine_joint(fd.nuis_fix, eff, per[f]["theta"], fd.chosen, input_model,
+                                                     dict(input_effects), ev, fd.tr_n, cfg)
+                    m_after, s_after = apply_effects(input_model, {**cand_nuis, **fd.chosen, name: theta})
+                    per[f]["after_frames"] = ev.frame_scalar(m_after, {**input_effects, **s_after}, fd.held)
+                    per[f]["e_train"] = float(ev.errors(m_after, {**input_effects, **s_after}, tr_e[f], per[f]["tr_masks"]).mean())
+                    per[f].update(theta=theta, nuis=cand_nuis, refit=True)
+                rel_before, rel_after, u_all, all_before, all_after = gather()
+                ok, why, rel = _decide(rel_before, rel_after, u_all, cfg, rng)
+                why = why.replace("held-out error", "(refitted with the corrections) held-out error", 1)
+            thetas = np.array([p["theta"] for p in per], float)
+            theta_rep = eff.clip(tuple(float(v) for v in thetas.mean(0)))
+            fold_txt = "fold values " + "; ".join("(" + ", ".join(f"{v:.4g}" for v in th) + ")" for th in thetas)
+            why = f"{why}; {K} folds, {fold_txt}"
+            if ok and all_after.mean() > all_before.mean():
+                ok, why = False, (f"rejected: makes the mean error over all held-out frames worse "
+                                  f"({(all_after.mean() - all_before.mean()) * 1e3:+.3f} mm); ") + why.removeprefix("passes; ")
+            bound_f = [f for f, p in enumerate(per) if at_bound(eff, p["theta"])]
+            if ok and bound_f:
+                ok, why = False, (f"rejected: fitted value on its bound in fold(s) {[f + 1 for f in bound_f]} "
+                                  "(compensating for something it does not model); ") + why.removeprefix("passes; ")
+            if ok and is_negligible(eff, theta_rep, folds[0].model):
+                ok, why = False, "rejected: fitted value within its resolution of no effect; " + why.removeprefix("passes; ")
+            if ok and eff.directional:
+                segs_ho = [fd.held[i] for f, fd in enumerate(folds) for i in ho_idx[f]]
+                d_ok, d_why = direction_check(eff, theta_rep, segs_ho, rel_before, rel_after)
+                if not d_ok:
+                    ok, why = False, (f"rejected: no heading-dependent signature ({d_why}); ") + why.removeprefix("passes; ")
+                else:
+                    why = why + f"; {d_why}"
+            n_tr = sum(len(t) for t in tr_e)
+            cand = EffectCandidate(
+                effect=name,
+                params={k: float(v) for k, v in zip(eff.params, theta_rep)},
+                heldout_error_before=float(rel_before.mean()),
+                heldout_error_after=float(rel_after.mean()),
+                accepted=False,
+                reason=why,
+                signature=sig,
+                initial_guess={k: float(v) for k, v in zip(eff.params, guess)},
+                train_error_before=float(np.mean([p["train_before"] for p in per])),
+                train_error_after=float(np.mean([p["e_train"] for p in per])),
+                round=rnd,
+                heldout_all_before=float(all_before.mean()),
+                heldout_all_after=float(all_after.mean()),
+                blocks={"train": n_tr, "heldout": int(len(rel_before)), "folds": K},
+            )
+            per_fold = []
+            for f, (p, fd) in enumerate(zip(per, folds)):
+                b = reduce_blocks([fd.cur_frames[i] for i in ho_idx[f]], p["ho_masks"])
+                a = reduce_blocks([p["after_frames"][i] for i in ho_idx[f]], p["ho_masks"])
+                per_fold.append({"params": {k: float(v) for k, v in zip(eff.params, p["theta"])},
+                                 "heldout_error_before": float(np.mean(b)) if len(b) else None,
+                                 "heldout_error_after": float(np.mean(a)) if len(a) else None,
+                                 "train_error_before": p["train_before"], "train_error_after": p["e_train"],
+                                 "blocks": {"train": len(tr_e[f]), "heldout": int(len(ho_idx[f]))},
+                                 "refit_with_corrections": p["refit"]})
+            round_res.append((ok, float(all_before.mean() - all_after.mean()), cand, per, theta_rep))
+            final[name] = cand
+            history.append({"round": rnd + 1, "effect": name, "params": dict(cand.params), "passes": ok,
+                            "heldout_error_before": cand.heldout_error_before,
+                            "heldout_error_after": cand.heldout_error_after,
+                            "heldout_all_before": cand.heldout_all_before,
+                            "heldout_all_after": cand.heldout_all_after, "reason": why, "folds": per_fold})
+        passing = [r for r in round_res if r[0]]
+        if not passing:
+            break
+        ok, gain, cand, per, theta_rep = max(passing, key=lambda r: r[1])
+        final[cand.effect] = dataclasses.replace(cand, accepted=True, reason="accepted: " + cand.reason.removeprefix("passes; "))
+        for r in round_res:
+            if r[0] and r[2].effect != cand.effect:
+                final[r[2].effect] = dataclasses.replace(r[2], reason=f"passes alone but {cand.effect} explains more; refitted next round")
+        chosen_rep[cand.effect] = theta_rep
+        remaining.remove(cand.effect)
+        for fd, p in zip(folds, per):
+            fd.chosen[cand.effect] = p["theta"]
+            fd.cur_frames = p["after_frames"]
+            if p["nuis"] is not fd.nuis_fix:  # corrections refitted together with the accepted effect
+                fd.nuis_fix = p["nuis"]
+                fd.model, fix_sim = apply_effects(input_model, fd.nuis_fix)
+                fd.base_effects = {**input_effects, **fix_sim}
+        if not remaining:
+            break
+
+    report(0.92, "errors by mode before/after")
+    new_model, _ = apply_effects(input_model, chosen_rep)
+    accepted_effects = _flat(chosen_rep)
+    out_model, recording = fold_into_model(new_model, accepted_effects, _carried_keys())
+    overall_b, table_b = _by_mode_groups(ev, [(input_model, input_effects, fd.held) for fd in folds])
+    if any_fix or any(fd.nuis_fix for fd in folds):
+        overall_c, table_c = _by_mode_groups(ev, [(fd.model, fd.base_effects, fd.held) for fd in folds])
+    else:
+        overall_c, table_c = overall_b, table_b
+    if chosen_rep:
+        groups = []
+        for fd in folds:
+            m, s = apply_effects(fd.model, fd.chosen)
+            groups.append((m, {**fd.base_effects, **s}, fd.held))
+        overall_a, table_a = _by_mode_groups(ev, groups)
+    else:
+        overall_a, table_a = overall_c, table_c
+    corrections = corrections_mean()
+    nuisance_report["corrections"] = corrections
+    held_before0 = union_all([fd.held_frames0 for fd in folds])
+    held_after = union_all([fd.cur_frames for fd in folds])
+    by_mode = {
+        "residual": stats,
+        "rollout_before": table_b,
+        "rollout_after": table_a,
+        "rollout_corrected": table_c,
+        "error_corrected": {**overall_c, "scalar_m": nuisance_report["heldout_error_after"]},
+        "nuisance": nuisance_report,
+        "segments": {"train_pool": sum(len(fd.train) for fd in folds), "heldout": sum(len(fd.held) for fd in folds),
+                     "folds": K},
+        "folds": [{"train_pool": len(fd.train), "heldout": len(fd.held), "units": int(len(np.unique(fd.units))),
+                   "effects": _flat(fd.chosen), "corrections": _flat(fd.nuis_fix),
+                   "heldout_error_before": float(reduce_blocks(fd.held_frames0).mean()),
+                   "heldout_error_after": float(reduce_blocks(fd.cur_frames).mean())} for fd in folds],
+        "rot_scale_m": ev.rot_scale,
+        "rollouts": ev.calls,
+        "recording_effects": recording,
+        "rounds": history,
+    }
+    ordered = [final[n] for n in names if n in final]
+    report(1.0, "done")
+    return ResidualOutputs(
+        candidates=tuple(ordered),
+        accepted=tuple(chosen_rep),
+        effects=accepted_effects,
+        error_before={**overall_b, "scalar_m": float(held_before0.mean())},
+        error_after={**overall_a, "scalar_m": float(held_after.mean())},
+        by_mode=by_mode,
+        model=out_model,
+        series={"heldout_error_before": held_before0, "heldout_error_after": held_after},
+        recording_effects=recording,
+        corrections=corrections,
+    )
