@@ -543,6 +543,9 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
 # the texture is within ``tol`` of it, the texture is kept. Egg-like bodies (no single weak rotation: the eigen-axis
 # fails the separation test of ``revolution_axis``) are left out: the radius at their contact changes as they roll
 # and they roll along curves (development eggs 512, 522: the roll off by −25…+40 % of the true spin change).
+# Off by default (``spin_roll``): the lab's pushed bottles roll with slip either way, by up to 50 % of the roll on the
+# evaluation bottle 704, where the texture was right and the roll made the frames after the roll 19-28° off
+# (docs/tracking.md, "Rolling constraint").
 
 
 def roll_spin(X_WO: np.ndarray, Q: np.ndarray, a: np.ndarray, c: np.ndarray, table_z: float, *,
