@@ -577,7 +577,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     spin = None
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
-        spin = _spin_closure(obs, X, model, cfg)
+        spin = _spin_closure(obs, X, model, cfg, session.table_height if cfg.spin_roll else None)
     X = interpolate_untracked(X, tracked)
     return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings)
 
@@ -777,9 +777,11 @@ def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
             tracked[j] = best_ok
 
 
-def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig) -> "SpinResult":
+def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig,
+                  table_z: float | None = None) -> "SpinResult":
     """Re-estimate the spin about the symmetry axis of a body of revolution (``service.tracking.spin``) and apply
-    it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture."""
+    it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture.
+    ``table_z``: the table's height, given when the rolling constraint is on (``cfg.spin_roll``)."""
     from service.tracking.spin import apply_spin, spin_closure
 
     empty = (np.zeros((0, 3)), None)
@@ -804,7 +806,9 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
                          n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
                          long_votes=cfg.spin_graph_long_votes, fast_span=cfg.spin_mixed_span,
                          fast_rate_deg=cfg.spin_mixed_rate_deg, fast_dilate=cfg.spin_mixed_dilate,
-                         fast_votes=cfg.spin_mixed_votes)
+                         fast_votes=cfg.spin_mixed_votes, table_z=table_z,
+                         roll=dict(tilt_deg=cfg.spin_roll_tilt_deg, rate_deg=cfg.spin_roll_rate_deg,
+                                   agree=cfg.spin_roll_agree, tol=cfg.spin_roll_tol))
         X[:] = apply_spin(X, res)
         return res
     res = spin_closure(feats, X, model.Q, model.N, tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,

@@ -305,6 +305,17 @@ class TrackingConfig:
     mask_trim_iters: int = 3
     mask_trim_deep_px: int = 3
     mask_trim_min: float = 0.01
+    # rolling constraint (spin_solver "mixed"; spin.roll_spin): a body of revolution lying on the table (axis within
+    # spin_roll_tilt_deg of horizontal) that rolls (roll angle from the tracked translation over the contact radius
+    # changing faster than spin_roll_rate_deg per frame) takes the roll's spin over the stretch when the texture
+    # turned the same way by at least spin_roll_agree of it (a sliding body does not) and lags the roll by more than
+    # spin_roll_tol of it; off: the roll is off by up to 50 % where the pushed bottle slips (evaluation 704:
+    # worst frame 7.9° -> 28.7°); docs/tracking.md "Rolling constraint"
+    spin_roll: bool = False
+    spin_roll_tilt_deg: float = 10.0
+    spin_roll_rate_deg: float = 1.0
+    spin_roll_agree: float = 0.3
+    spin_roll_tol: float = 0.2  # a texture within this fraction of the roll is kept (the roll's own error)
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -375,6 +386,16 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.mask_trim_min must be in [0, 1], not {self.mask_trim_min!r}")
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
+        if self.spin_roll and self.spin_solver != "mixed":
+            raise ValueError(f"TrackingConfig.spin_roll needs spin_solver 'mixed', not {self.spin_solver!r}")
+        if not 0 < self.spin_roll_tilt_deg < 90:
+            raise ValueError(f"TrackingConfig.spin_roll_tilt_deg must be in (0, 90), not {self.spin_roll_tilt_deg!r}")
+        if not self.spin_roll_rate_deg > 0:
+            raise ValueError(f"TrackingConfig.spin_roll_rate_deg must be > 0, not {self.spin_roll_rate_deg!r}")
+        if not 0 <= self.spin_roll_agree <= 1:
+            raise ValueError(f"TrackingConfig.spin_roll_agree must be in [0, 1], not {self.spin_roll_agree!r}")
+        if not 0 <= self.spin_roll_tol < 1:
+            raise ValueError(f"TrackingConfig.spin_roll_tol must be in [0, 1), not {self.spin_roll_tol!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages``, ``color_stages`` or ``sil_stages`` (comma-separated; ValueError for
