@@ -32,8 +32,8 @@ import numpy as np
 from service.errors import InvalidInput
 from service.model import ObjectModel
 from service.residuals.effects import REGISTRY, apply_effects, at_bound, fold_into_model, is_negligible
-from service.residuals.modes import classify, collision_vertices
-from service.residuals.types import MODES, EffectCandidate, ResidualConfig, ResidualInputs, ResidualOutputs
+from service.residuals.modes import classify
+from service.residuals.types import EffectCandidate, ResidualConfig, ResidualInputs, ResidualOutputs
 
 
 def fold_segments(segs: list, cfg: ResidualConfig) -> tuple[list[tuple[list, list]], list[np.ndarray]]:
@@ -86,27 +86,6 @@ class _Fold:
     nuisance: dict = field(default_factory=dict)
 
 
-def _by_mode_groups(ev, groups) -> tuple[dict, dict]:
-    """``Evaluator.by_mode`` over several (model, effects, segs) groups pooled frame by frame."""
-    P, R, M = [], [], []
-    for model, effects, segs in groups:
-        for s in segs:
-            pos, rot = ev.frame_errors(model, effects, s)
-            P.append(pos[s.tracked])
-            R.append(rot[s.tracked])
-            M.append(s.mode[s.tracked])
-    P, R, M = np.concatenate(P), np.concatenate(R), np.concatenate(M)
-    table = {}
-    for i, name in enumerate(MODES):
-        sel = M == i
-        table[name] = {
-            "frames": int(sel.sum()),
-            "pos_err_m": float(P[sel].mean()) if sel.any() else None,
-            "rot_err_deg": float(np.degrees(R[sel].mean())) if sel.any() else None,
-        }
-    return {"pos_err_m": float(P.mean()), "rot_err_deg": float(np.degrees(R.mean()))}, table
-
-
 def _flat(names_theta: dict) -> dict[str, float]:
     return {k: float(v) for n, th in names_theta.items() for k, v in zip(REGISTRY[n].params, th)}
 
@@ -117,7 +96,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
     ``segs`` every rollout block, ``ev`` the Evaluator."""
     from service.residuals.loop import (
         _acts_on, _carried_keys, _decide, _fit, _fit_nuisance, _refine_joint, direction_check, effect_mask,
-        reduce_blocks,
+        inadequacy, not_judged, reduce_blocks,
     )
 
     K = cfg.folds
@@ -168,18 +147,10 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
     nuisance_report: dict = {"names": nuis_names, "heldout_error_after": base_err, "corrections": corrections_mean(),
                              "folds": [dict(fd.nuisance) for fd in folds]}
     pinned = sorted({n for fd in folds for n, th in fd.nuis_fix.items() if at_bound(REGISTRY[n], th)})
-    why_not = None
     max_rel = cfg.max_base_error_rel_learned if nuis_names else cfg.max_base_error_rel
     any_fix = any(fd.nuis_fix for fd in folds)
     ref_model = next((fd.model for fd in folds if fd.nuis_fix), input_model)
-    Vc = collision_vertices(ref_model)
-    Vc = Vc - Vc.mean(0)
-    size = 0.5 * float(np.linalg.norm(np.ptp(Vc @ np.linalg.svd(Vc, full_matrices=False)[2].T, axis=0)))
-    if base_err > max_rel * size:
-        why_not = (f"the {'corrected ' if any_fix else ''}model's held-out error {base_err * 1e3:.1f} mm exceeds "
-                   f"{max_rel:.0%} of the object size ({size * 1e3:.0f} mm, half its box diagonal)")
-    elif pinned:
-        why_not = f"the model's corrections {pinned} went to their bounds"
+    why_not = inadequacy(base_err, ref_model, pinned, any_fix, max_rel)
     nuisance_report["model_adequate"] = why_not is None
 
     final: dict[str, EffectCandidate] = {}
@@ -189,11 +160,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
     n_rounds = min(cfg.max_effects, len(names))
     if why_not is not None:
         n_rounds = 0
-        for name in names:
-            final[name] = EffectCandidate(
-                name, {}, float("nan"), float("nan"), False,
-                f"not judged: {why_not}; the model does not explain the motion well enough to name a missing effect",
-                round=0)
+        final.update(not_judged(names, why_not))
     for rnd in range(n_rounds):
         round_res = []
         cur = [apply_effects(fd.model, fd.chosen) for fd in folds]
@@ -333,9 +300,9 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
     new_model, _ = apply_effects(input_model, chosen_rep)
     accepted_effects = _flat(chosen_rep)
     out_model, recording = fold_into_model(new_model, accepted_effects, _carried_keys())
-    overall_b, table_b = _by_mode_groups(ev, [(input_model, input_effects, fd.held) for fd in folds])
+    overall_b, table_b = ev.by_mode_groups([(input_model, input_effects, fd.held) for fd in folds])
     if any_fix or any(fd.nuis_fix for fd in folds):
-        overall_c, table_c = _by_mode_groups(ev, [(fd.model, fd.base_effects, fd.held) for fd in folds])
+        overall_c, table_c = ev.by_mode_groups([(fd.model, fd.base_effects, fd.held) for fd in folds])
     else:
         overall_c, table_c = overall_b, table_b
     if chosen_rep:
@@ -343,7 +310,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
         for fd in folds:
             m, s = apply_effects(fd.model, fd.chosen)
             groups.append((m, {**fd.base_effects, **s}, fd.held))
-        overall_a, table_a = _by_mode_groups(ev, groups)
+        overall_a, table_a = ev.by_mode_groups(groups)
     else:
         overall_a, table_a = overall_c, table_c
     corrections = corrections_mean()

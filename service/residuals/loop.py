@@ -348,12 +348,18 @@ class Evaluator:
 
     def by_mode(self, model, effects, segs) -> tuple[dict, dict]:
         """Mean pos/rot error per mode over all frames of ``segs``, plus overall figures."""
+        return self.by_mode_groups([(model, effects, segs)])
+
+    def by_mode_groups(self, groups) -> tuple[dict, dict]:
+        """``by_mode`` over several (model, effects, segs) groups pooled frame by frame (cross-fitting: each fold's
+        held-out blocks with that fold's model)."""
         P, R, M = [], [], []
-        for s in segs:
-            pos, rot = self.frame_errors(model, effects, s)
-            P.append(pos[s.tracked])
-            R.append(rot[s.tracked])
-            M.append(s.mode[s.tracked])
+        for model, effects, segs in groups:
+            for s in segs:
+                pos, rot = self.frame_errors(model, effects, s)
+                P.append(pos[s.tracked])
+                R.append(rot[s.tracked])
+                M.append(s.mode[s.tracked])
         P, R, M = np.concatenate(P), np.concatenate(R), np.concatenate(M)
         table = {}
         for i, name in enumerate(MODES):
@@ -545,6 +551,29 @@ def _refine_joint(nuis: dict[str, tuple], eff: Effect, theta, chosen: dict[str, 
     return {e.name: parts[i] for i, e in enumerate(effs[:-1])}, eff.clip(parts[-1])
 
 
+def inadequacy(base_err: float, model: ObjectModel, pinned: list[str], corrected: bool, max_rel: float) -> str | None:
+    """Why the (corrected) model is not adequate to name a missing effect, or None: its held-out error exceeds
+    ``max_rel`` of the object size (half the diagonal of the geometry's principal-axes box: a CoM far off the
+    shape, as in a poor learned model, must not enlarge it), or nuisance corrections ``pinned`` to their bounds."""
+    Vc = collision_vertices(model)
+    Vc = Vc - Vc.mean(0)
+    size = 0.5 * float(np.linalg.norm(np.ptp(Vc @ np.linalg.svd(Vc, full_matrices=False)[2].T, axis=0)))
+    if base_err > max_rel * size:
+        return (f"the {'corrected ' if corrected else ''}model's held-out error {base_err * 1e3:.1f} mm exceeds "
+                f"{max_rel:.0%} of the object size ({size * 1e3:.0f} mm, half its box diagonal)")
+    if pinned:
+        return f"the model's corrections {pinned} went to their bounds"
+    return None
+
+
+def not_judged(names: list[str], why_not: str) -> dict[str, EffectCandidate]:
+    """Every candidate reported as not judged, with the reason the model is not adequate."""
+    return {name: EffectCandidate(
+        name, {}, float("nan"), float("nan"), False,
+        f"not judged: {why_not}; the model does not explain the motion well enough to name a missing effect",
+        round=0) for name in names}
+
+
 def unit_improvements(before: np.ndarray, after: np.ndarray, units: np.ndarray, statistic: str = "relative") -> np.ndarray:
     """Per held-out unit u, its improvement from paired block errors (S,) → (U,).
 
@@ -698,26 +727,12 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
         n_rounds = min(cfg.max_effects, len(names))
         base_err = float(reduce_blocks(held_cur_frames).mean())
         pinned = [n for n, th in nuis_fix.items() if at_bound(REGISTRY[n], th)]
-        why_not = None
         max_rel = cfg.max_base_error_rel_learned if nuis_names else cfg.max_base_error_rel
-        # object size for this bound: half the diagonal of the geometry's principal-axes box (a CoM far off
-        # the shape, as in a poor learned model, must not enlarge it)
-        Vc = collision_vertices(model)
-        Vc = Vc - Vc.mean(0)
-        size = 0.5 * float(np.linalg.norm(np.ptp(Vc @ np.linalg.svd(Vc, full_matrices=False)[2].T, axis=0)))
-        if base_err > max_rel * size:
-            why_not = (f"the {'corrected ' if corrections else ''}model's held-out error {base_err * 1e3:.1f} mm exceeds "
-                       f"{max_rel:.0%} of the object size ({size * 1e3:.0f} mm, half its box diagonal)")
-        elif pinned:
-            why_not = f"the model's corrections {pinned} went to their bounds"
+        why_not = inadequacy(base_err, model, pinned, bool(corrections), max_rel)
         nuisance_report["model_adequate"] = why_not is None
         if why_not is not None:
             n_rounds = 0
-            for name in names:
-                final[name] = EffectCandidate(
-                    name, {}, float("nan"), float("nan"), False,
-                    f"not judged: {why_not}; the model does not explain the motion well enough to name a missing effect",
-                    round=0)
+            final.update(not_judged(names, why_not))
         for rnd in range(n_rounds):
             round_res = []
             cur_model, cur_sim = apply_effects(model, chosen)
