@@ -12,9 +12,9 @@ import pytest
 from service.tracking.spin import fast_frames, find_axis, spin_closure, spin_graph, spin_matrix, spin_mixed
 from service.tracking.types import TrackingConfig
 from service.transforms import make_X, so3_exp
-from tests.tracking.test_spin import R_CYL, _cylinder_model
+from tests.tracking.cylinder_feats import N_AZ, cylinder_features
+from tests.tracking.test_spin import _cylinder_model
 
-N_AZ, HEIGHTS = 200, (-0.03, 0.0, 0.03)  # surface points: rings of N_AZ azimuths (1.8° apart)
 FALL = range(20, 30)  # tracked rotation 9°/frame about an axis across the body (frame 29 at 90°)
 SLOW = 40  # from here on each pair of frames has 4 matches
 
@@ -33,16 +33,7 @@ def _scene():
     X_trk = np.stack([make_X(so3_exp(e1 * t), np.array([0.5, 0.0, 0.1])) for t in tilt])
     X_true = np.stack([X @ spin_matrix(a, c, e) for X, e in zip(X_trk, err)])
     # surface points in O: azimuth k (1.8° steps) about the axis in rings along it; in W with the true poses
-    b1 = np.cross(a, e1)
-    phi = np.radians(np.arange(N_AZ) * 360.0 / N_AZ)
-    P_O = np.concatenate([c + h * a + R_CYL * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * b1)
-                          for h in HEIGHTS])
-    feats = []
-    for i, X in enumerate(X_true):
-        des = np.zeros((len(P_O), 32), np.uint8)
-        ids = np.arange(len(P_O))
-        des[:, 0], des[:, 1], des[:, 2] = ids % 256, ids // 256, i
-        feats.append((P_O @ X[:3, :3].T + X[:3, 3], des))
+    feats = cylinder_features(a, c, e1, X_true)
     return Q, N, X_trk, err, feats
 
 

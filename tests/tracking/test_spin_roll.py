@@ -12,9 +12,9 @@ import pytest
 from service.tracking.spin import find_axis, roll_spin, spin_closure, spin_matrix, spin_mixed
 from service.tracking.types import TrackingConfig
 from service.transforms import make_X, so3_exp
+from tests.tracking.cylinder_feats import cylinder_features
 from tests.tracking.test_spin import R_CYL, _cylinder_model
 
-N_AZ, HEIGHTS = 200, (-0.03, 0.0, 0.03)
 ROLL = range(20, 40)  # 3° per frame about the axis, from frame 20 to 39 (60° in all)
 
 
@@ -35,16 +35,7 @@ def _scene(rolls: bool = True, seen: float = 0.4):
     err = sgn * beta / 2  # X_trk S(err) = X_true
     X_seen = np.stack([X @ spin_matrix(a, c, seen * e) for X, e in zip(X_trk, err)])  # what the texture follows
     e1 = np.array([0.0, 1.0, 0.0])
-    b1 = np.cross(a, e1)
-    phi = np.radians(np.arange(N_AZ) * 360.0 / N_AZ)
-    P_O = np.concatenate([c + h * a + R_CYL * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * b1)
-                          for h in HEIGHTS])
-    feats = []
-    for i, X in enumerate(X_seen):
-        des = np.zeros((len(P_O), 32), np.uint8)
-        ids = np.arange(len(P_O))
-        des[:, 0], des[:, 1], des[:, 2] = ids % 256, ids // 256, i
-        feats.append((P_O @ X[:3, :3].T + X[:3, 3], des))
+    feats = cylinder_features(a, c, e1, X_seen)
     return Q, N, X_trk, err, feats
 
 
