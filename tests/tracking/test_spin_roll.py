@@ -11,7 +11,7 @@ import pytest
 
 from service.tracking.spin import find_axis, roll_spin, spin_closure, spin_matrix, spin_mixed
 from service.tracking.types import TrackingConfig
-from service.transforms import make_X, so3_exp
+from service.transforms import make_X
 from tests.tracking.cylinder_feats import cylinder_features
 from tests.tracking.test_spin import R_CYL, _cylinder_model
 
