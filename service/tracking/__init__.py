@@ -54,7 +54,8 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
         if strip >= cfg.mask_trim_min:
             sv = trimmed
             if progress is not None:
-                progress(0.6, f"masks trimmed by colour ({100 * strip:.1f} % of their pixels look like background)")
+                progress(0.6, f"masks trimmed by colour: {100 * strip:.1f} % of their pixels, "
+                              f"{cfg.mask_trim_deep_px} px or more inside, look like background")
     rays = sdf_rays(sv, tr.X_WO, frames, tr.model.tree, cfg, rng, carver=tr.carver)
     halfspace = below_table_halfspace(tr.X_WO[0], s.table_height) if cfg.below_table_outside else None
     band = None
