@@ -95,8 +95,8 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
     """The greedy loop of ``loop.run`` with K-fold cross-fitting (module docstring). ``model`` is the input model,
     ``segs`` every rollout block, ``ev`` the Evaluator."""
     from service.residuals.loop import (
-        _acts_on, _carried_keys, _decide, _fit, _fit_nuisance, _refine_joint, direction_check, effect_mask,
-        inadequacy, not_judged, reduce_blocks,
+        _acts_on, _carried_keys, _decide, _fit, _fit_nuisance, _refine_joint, accept_best, effect_mask, history_entry,
+        inadequacy, later_rules, not_judged, reduce_blocks,
     )
 
     K = cfg.folds
@@ -226,22 +226,10 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
             theta_rep = eff.clip(tuple(float(v) for v in thetas.mean(0)))
             fold_txt = "fold values " + "; ".join("(" + ", ".join(f"{v:.4g}" for v in th) + ")" for th in thetas)
             why = f"{why}; {K} folds, {fold_txt}"
-            if ok and all_after.mean() > all_before.mean():
-                ok, why = False, (f"rejected: makes the mean error over all held-out frames worse "
-                                  f"({(all_after.mean() - all_before.mean()) * 1e3:+.3f} mm); ") + why.removeprefix("passes; ")
-            bound_f = [f for f, p in enumerate(per) if at_bound(eff, p["theta"])]
-            if ok and bound_f:
-                ok, why = False, (f"rejected: fitted value on its bound in fold(s) {[f + 1 for f in bound_f]} "
-                                  "(compensating for something it does not model); ") + why.removeprefix("passes; ")
-            if ok and is_negligible(eff, theta_rep, folds[0].model):
-                ok, why = False, "rejected: fitted value within its resolution of no effect; " + why.removeprefix("passes; ")
-            if ok and eff.directional:
-                segs_ho = [fd.held[i] for f, fd in enumerate(folds) for i in ho_idx[f]]
-                d_ok, d_why = direction_check(eff, theta_rep, segs_ho, rel_before, rel_after)
-                if not d_ok:
-                    ok, why = False, (f"rejected: no heading-dependent signature ({d_why}); ") + why.removeprefix("passes; ")
-                else:
-                    why = why + f"; {d_why}"
+            bound_f = [f + 1 for f, p in enumerate(per) if at_bound(eff, p["theta"])]
+            ok, why = later_rules(ok, why, eff, theta_rep, folds[0].model, all_before, all_after,
+                                  [fd.held[i] for f, fd in enumerate(folds) for i in ho_idx[f]], rel_before, rel_after,
+                                  f" in fold(s) {bound_f}" if bound_f else None)
             n_tr = sum(len(t) for t in tr_e)
             cand = EffectCandidate(
                 effect=name,
@@ -271,19 +259,11 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                                  "refit_with_corrections": p["refit"]})
             round_res.append((ok, float(all_before.mean() - all_after.mean()), cand, per, theta_rep))
             final[name] = cand
-            history.append({"round": rnd + 1, "effect": name, "params": dict(cand.params), "passes": ok,
-                            "heldout_error_before": cand.heldout_error_before,
-                            "heldout_error_after": cand.heldout_error_after,
-                            "heldout_all_before": cand.heldout_all_before,
-                            "heldout_all_after": cand.heldout_all_after, "reason": why, "folds": per_fold})
-        passing = [r for r in round_res if r[0]]
-        if not passing:
+            history.append(history_entry(rnd, cand, ok, folds=per_fold))
+        best = accept_best(round_res, final)
+        if best is None:
             break
-        ok, gain, cand, per, theta_rep = max(passing, key=lambda r: r[1])
-        final[cand.effect] = dataclasses.replace(cand, accepted=True, reason="accepted: " + cand.reason.removeprefix("passes; "))
-        for r in round_res:
-            if r[0] and r[2].effect != cand.effect:
-                final[r[2].effect] = dataclasses.replace(r[2], reason=f"passes alone but {cand.effect} explains more; refitted next round")
+        ok, gain, cand, per, theta_rep = best
         chosen_rep[cand.effect] = theta_rep
         remaining.remove(cand.effect)
         for fd, p in zip(folds, per):
@@ -301,7 +281,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
     accepted_effects = _flat(chosen_rep)
     out_model, recording = fold_into_model(new_model, accepted_effects, _carried_keys())
     overall_b, table_b = ev.by_mode_groups([(input_model, input_effects, fd.held) for fd in folds])
-    if any_fix or any(fd.nuis_fix for fd in folds):
+    if any(fd.nuis_fix for fd in folds):
         overall_c, table_c = ev.by_mode_groups([(fd.model, fd.base_effects, fd.held) for fd in folds])
     else:
         overall_c, table_c = overall_b, table_b

@@ -574,6 +574,52 @@ def not_judged(names: list[str], why_not: str) -> dict[str, EffectCandidate]:
         round=0) for name in names}
 
 
+def later_rules(ok: bool, why: str, eff, theta, model: ObjectModel, all_before: np.ndarray, all_after: np.ndarray,
+                held_segs: list, rel_before: np.ndarray, rel_after: np.ndarray, on_bound: str | None) -> tuple[bool, str]:
+    """Rules 6, 5, 4 and 7 (§4) after the held-out test: the mean error over all held-out frames must not grow, the
+    fitted value must not sit on a bound (``on_bound``: None if it does not, else where it does, "" or e.g.
+    " in fold(s) [2]"), nor within the effect's resolution of no effect, and a directional effect needs its
+    heading-dependent signature on ``held_segs``. Returns (ok, reason)."""
+    rest = why.removeprefix("passes; ")
+    if ok and all_after.mean() > all_before.mean():
+        return False, (f"rejected: makes the mean error over all held-out frames worse "
+                       f"({(all_after.mean() - all_before.mean()) * 1e3:+.3f} mm); ") + rest
+    if ok and on_bound is not None:
+        return False, f"rejected: fitted value on its bound{on_bound} (compensating for something it does not model); " + rest
+    if ok and is_negligible(eff, theta, model):
+        return False, "rejected: fitted value within its resolution of no effect; " + rest
+    if ok and eff.directional:
+        d_ok, d_why = direction_check(eff, theta, held_segs, rel_before, rel_after)
+        if not d_ok:
+            return False, f"rejected: no heading-dependent signature ({d_why}); " + rest
+        return ok, why + f"; {d_why}"
+    return ok, why
+
+
+def history_entry(rnd: int, cand: EffectCandidate, ok: bool, **extra) -> dict:
+    """One candidate's fit of round ``rnd`` (0-based) for ``by_mode["rounds"]``."""
+    return {"round": rnd + 1, "effect": cand.effect, "params": dict(cand.params), "passes": ok,
+            "heldout_error_before": cand.heldout_error_before, "heldout_error_after": cand.heldout_error_after,
+            "heldout_all_before": cand.heldout_all_before, "heldout_all_after": cand.heldout_all_after,
+            "reason": cand.reason, **extra}
+
+
+def accept_best(round_res: list[tuple], final: dict[str, EffectCandidate]) -> tuple | None:
+    """Greedy step: of a round's results (passes, fall of the all-frame error, candidate, ...), the passing one with
+    the largest fall is marked accepted in ``final`` and returned (None if none passes); the other passing ones are
+    noted as explained by it."""
+    passing = [r for r in round_res if r[0]]
+    if not passing:
+        return None
+    best = max(passing, key=lambda r: r[1])
+    cand = best[2]
+    final[cand.effect] = dataclasses.replace(cand, accepted=True, reason="accepted: " + cand.reason.removeprefix("passes; "))
+    for r in round_res:
+        if r[0] and r[2].effect != cand.effect:
+            final[r[2].effect] = dataclasses.replace(r[2], reason=f"passes alone but {cand.effect} explains more; refitted next round")
+    return best
+
+
 def unit_improvements(before: np.ndarray, after: np.ndarray, units: np.ndarray, statistic: str = "relative") -> np.ndarray:
     """Per held-out unit u, its improvement from paired block errors (S,) → (U,).
 
@@ -776,20 +822,8 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
                     e_train = float(ev.errors(m_after, {**dict(input_model.effects), **s_after}, tr_e, tr_masks).mean())
                     ok, why, rel = _decide(rel_before, rel_after, units[ho_idx], cfg, rng)
                     why = why.replace("held-out error", "(refitted with the corrections) held-out error", 1)
-                if ok and all_after.mean() > all_before.mean():
-                    ok, why = False, (f"rejected: makes the mean error over all held-out frames worse "
-                                      f"({(all_after.mean() - all_before.mean()) * 1e3:+.3f} mm); ") + why.removeprefix("passes; ")
-                if ok and at_bound(eff, theta):
-                    ok, why = False, ("rejected: fitted value on its bound (compensating for something it does not "
-                                      "model); ") + why.removeprefix("passes; ")
-                if ok and is_negligible(eff, theta, model):
-                    ok, why = False, "rejected: fitted value within its resolution of no effect; " + why.removeprefix("passes; ")
-                if ok and eff.directional:
-                    d_ok, d_why = direction_check(eff, theta, [held[i] for i in ho_idx], rel_before, rel_after)
-                    if not d_ok:
-                        ok, why = False, (f"rejected: no heading-dependent signature ({d_why}); ") + why.removeprefix("passes; ")
-                    else:
-                        why = why + f"; {d_why}"
+                ok, why = later_rules(ok, why, eff, theta, model, all_before, all_after, [held[i] for i in ho_idx],
+                                      rel_before, rel_after, "" if at_bound(eff, theta) else None)
                 cand = EffectCandidate(
                     effect=name,
                     params={k: float(v) for k, v in zip(eff.params, theta)},
@@ -810,19 +844,11 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
                 # on different frames (an effect on many frames can otherwise outrank the one that explains them)
                 round_res.append((ok, float(all_before.mean() - all_after.mean()), cand, theta, after_frames, cand_nuis))
                 final[name] = cand
-                history.append({"round": rnd + 1, "effect": name, "params": dict(cand.params), "passes": ok,
-                                "heldout_error_before": cand.heldout_error_before,
-                                "heldout_error_after": cand.heldout_error_after,
-                                "heldout_all_before": cand.heldout_all_before,
-                                "heldout_all_after": cand.heldout_all_after, "reason": why})
-            passing = [r for r in round_res if r[0]]
-            if not passing:
+                history.append(history_entry(rnd, cand, ok))
+            best = accept_best(round_res, final)
+            if best is None:
                 break
-            ok, gain, cand, theta, after_frames, cand_nuis = max(passing, key=lambda r: r[1])
-            final[cand.effect] = dataclasses.replace(cand, accepted=True, reason="accepted: " + cand.reason.removeprefix("passes; "))
-            for r in round_res:
-                if r[0] and r[2].effect != cand.effect:
-                    final[r[2].effect] = dataclasses.replace(r[2], reason=f"passes alone but {cand.effect} explains more; refitted next round")
+            ok, gain, cand, theta, after_frames, cand_nuis = best
             chosen[cand.effect] = theta
             remaining.remove(cand.effect)
             held_cur_frames = after_frames
