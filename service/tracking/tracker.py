@@ -786,34 +786,24 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
 
     empty = (np.zeros((0, 3)), None)
     feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
+    common = dict(tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg, smooth=cfg.spin_smooth,
+                  match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)
+    graph = dict(gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
+                 long_votes=cfg.spin_graph_long_votes)
     if cfg.spin_solver == "graph":  # joint estimate over frame pairs (spin.spin_graph)
         from service.tracking.spin import spin_graph
 
-        res = spin_graph(feats, X, model.Q, model.N, tau=cfg.spin_tau, tol=cfg.spin_tol,
-                         inlier_deg=cfg.spin_inlier_deg, min_votes=cfg.spin_graph_votes, smooth=cfg.spin_smooth,
-                         match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg,
-                         gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short,
-                         rate_deg=cfg.spin_graph_rate_deg, long_votes=cfg.spin_graph_long_votes)
-        X[:] = apply_spin(X, res)
-        return res
-    if cfg.spin_solver == "mixed":  # the chain, the graph's increments over fast stretches (spin.spin_mixed)
+        res = spin_graph(feats, X, model.Q, model.N, min_votes=cfg.spin_graph_votes, **common, **graph)
+    elif cfg.spin_solver == "mixed":  # the chain, the graph's increments over fast stretches (spin.spin_mixed)
         from service.tracking.spin import spin_mixed
 
-        res = spin_mixed(feats, X, model.Q, model.N, tau=cfg.spin_tau, tol=cfg.spin_tol,
-                         inlier_deg=cfg.spin_inlier_deg, min_votes=cfg.spin_min_votes,
-                         graph_votes=cfg.spin_graph_votes, smooth=cfg.spin_smooth, match=_match, sep=cfg.spin_sep,
-                         profile=cfg.spin_profile, max_deg=cfg.spin_max_deg, gate_deg=cfg.spin_graph_gate_deg,
-                         n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
-                         long_votes=cfg.spin_graph_long_votes, fast_span=cfg.spin_mixed_span,
-                         fast_rate_deg=cfg.spin_mixed_rate_deg, fast_dilate=cfg.spin_mixed_dilate,
-                         fast_votes=cfg.spin_mixed_votes, table_z=table_z,
+        res = spin_mixed(feats, X, model.Q, model.N, min_votes=cfg.spin_min_votes, graph_votes=cfg.spin_graph_votes,
+                         fast_span=cfg.spin_mixed_span, fast_rate_deg=cfg.spin_mixed_rate_deg,
+                         fast_dilate=cfg.spin_mixed_dilate, fast_votes=cfg.spin_mixed_votes, table_z=table_z,
                          roll=dict(tilt_deg=cfg.spin_roll_tilt_deg, rate_deg=cfg.spin_roll_rate_deg,
-                                   agree=cfg.spin_roll_agree, tol=cfg.spin_roll_tol))
-        X[:] = apply_spin(X, res)
-        return res
-    res = spin_closure(feats, X, model.Q, model.N, tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
-                       min_votes=cfg.spin_min_votes, smooth=cfg.spin_smooth, match=_match, sep=cfg.spin_sep,
-                       profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)
+                                   agree=cfg.spin_roll_agree, tol=cfg.spin_roll_tol), **common, **graph)
+    else:  # the per-frame chain (spin.spin_closure)
+        res = spin_closure(feats, X, model.Q, model.N, min_votes=cfg.spin_min_votes, **common)
     X[:] = apply_spin(X, res)
     return res
 
