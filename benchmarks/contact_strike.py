@@ -61,7 +61,10 @@ def main() -> None:
     ap.add_argument("data", type=Path)
     ap.add_argument("--name", default=None, help="ingest name (e.g. baking_box_strike_511)")
     ap.add_argument("--session", default=None, help="session sha256 prefix (several sessions share a name)")
-    ap.add_argument("--poses", choices=("tracked", "true"), default="tracked")
+    ap.add_argument("--poses", choices=("tracked", "true"), default="tracked",
+                    help="poses the contact stage is re-run on: the tracked ones (what the service does) or, as an "
+                         "oracle that isolates tracking errors, the true ones from ground_truth/ (diagnosis only: "
+                         "nothing of that run is stored or shipped)")
     ap.add_argument("--config", default=None, help="JSON overrides of ContactConfig()")
     ap.add_argument("--stored", action="store_true", help="analyse the stored contact outputs only")
     ap.add_argument("--tracking", default=None, help="tracking artifact key prefix (default: the newest)")
