@@ -418,6 +418,17 @@ def main() -> None:
                         help="held-out test by K-fold cross-fitting (docs/residuals.md §4): 1 = one seeded split "
                              "(half the units held out), K >= 2 = every unit held out once, rules on the union")
     args = ap.parse_args()
+    # refused before any session is made (naming the flag), not by a traceback from the loop's config
+    if args.folds < 1:
+        ap.error(f"--folds: expected an integer >= 1, got {args.folds}")
+    if getattr(args, "pose_noise", 0.0) < 0:
+        ap.error(f"--pose-noise: expected a noise level >= 0 m, got {args.pose_noise}")
+    if getattr(args, "candidates", None):
+        from service.residuals.effects import REGISTRY
+
+        unknown = sorted(set(args.candidates) - set(REGISTRY))
+        if unknown:
+            ap.error(f"--candidates: unknown effects {unknown}; known: {sorted(REGISTRY)}")
     print("command:", " ".join(["python", *sys.argv]))
     {"real": real, "synthetic": synthetic, "lab": lab, "strike": strike}[args.cmd](args)
 
