@@ -75,14 +75,18 @@ class TrimmedMasks:
         self._session = session
         self._band_px = band_px
         self._iters = iters
-        self._cache: dict[int, np.ndarray] = {}
+        self._cache: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # frame: (given mask, trimmed mask)
 
-    def mask(self, i: int) -> np.ndarray:
+    def _pair(self, i: int) -> tuple[np.ndarray, np.ndarray]:
         i = int(i)
         if i not in self._cache:
             s = self._session
-            self._cache[i] = trim_mask(s.rgb(i), s.mask(i), self._band_px, self._iters)
+            given = s.mask(i)
+            self._cache[i] = (given, trim_mask(s.rgb(i), given, self._band_px, self._iters))
         return self._cache[i]
+
+    def mask(self, i: int) -> np.ndarray:
+        return self._pair(i)[1]
 
     def strip_fraction(self, frames, deep_px: int) -> float:
         """Median over ``frames`` (with a non-empty given mask) of the fraction of mask pixels the trim removes at
@@ -91,10 +95,10 @@ class TrimmedMasks:
 
         fr = []
         for i in frames:
-            given = self._session.mask(int(i))
+            given, trimmed = self._pair(i)
             if given.any():
                 inside = cv2.distanceTransform(given.astype(np.uint8), cv2.DIST_L2, 3)
-                fr.append(float((given & ~self.mask(int(i)) & (inside >= deep_px)).sum() / given.sum()))
+                fr.append(float((given & ~trimmed & (inside >= deep_px)).sum() / given.sum()))
         return float(np.median(fr)) if fr else float("nan")
 
     def __getattr__(self, name):
