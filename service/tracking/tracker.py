@@ -476,6 +476,15 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 last[:] = [i]
                 if sil_st:
                     sil_Q = _sil_model(model, keyframes, rims, cfg)
+        if cfg.resettle:  # after a topple's landing: the pre-fall model tipped onto its leading face
+            rel = _resettle_check(session, i, o, X, tracked, keyframes, carver, landings, cfg)
+            if rel is not None:
+                best, model = rel
+                frac[i], rmse[i] = best.inlier_frac, best.rmse
+                last[:] = [i]
+                if sil_st:
+                    rims[i] = _rim(session, i, cfg)
+                    sil_Q = _sil_model(model, keyframes, rims, cfg)
         # keyframe?
         dists = [pose_distance(kf.X_WO, X[i]) for kf in keyframes]
         far = min(max(d / cfg.kf_dist, ang / cfg.kf_angle_deg) for d, ang in dists) >= 1.0
@@ -741,6 +750,52 @@ def _settle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.ndarr
         carver.indices = [carver.indices[k] for k in idx]
     X[i] = best.X_WO
     return best, M
+
+
+def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.ndarray, keyframes: list[Keyframe],
+                    carver: "FreeSpace | None", landings: list, cfg: TrackingConfig
+                    ) -> tuple[IcpResult, ObjectModel] | None:
+    """Frame i (just tracked) comes ``resettle_delay`` frames after a topple's fast landing
+    (``resettle.find_fall``): its pose from the pre-fall model tipped onto its leading face
+    (``resettle.landing_pose``, ``resettle.face_offsets``). When that pose differs from the tracked one by more than
+    ``resettle_min_deg`` / ``resettle_min_dist``, the keyframes from the fall's start on are dropped (``keyframes``,
+    ``carver`` changed in place), X[i] takes it and frame i becomes a keyframe with all its points; returns (the ICP
+    result at the new pose, the new model), else None. Every fall checked is appended to ``landings``."""
+    from service.tracking.geometry import icp_result
+    from service.tracking.resettle import face_offsets, find_fall, landing_pose, reach_along
+    from service.tracking.settle import Landing
+
+    ev = find_fall(X, tracked, i, cfg.settle_fast_deg, cfg.settle_fall_deg, cfg.resettle_tip_deg,
+                   cfg.resettle_min_tip_deg, cfg.resettle_delay, after=max([ld.i for ld in landings], default=0))
+    if ev is None:
+        return None
+    r, g0, _, h = ev
+    pre = [kf for kf in keyframes if kf.index < g0]
+    if not pre:
+        return None
+    M = _model_from(pre, cfg.model_voxel)
+    Xj = landing_pose(X[r], h, M.Q, M.N, session.table_height)
+    Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift,
+                      max_yaw_deg=cfg.resettle_max_yaw_deg)
+    Xj = reach_along(Xj, M.Q, o.P_W, np.cross(h, [0.0, 0.0, 1.0]), cfg.resettle_max_shift)
+    dt, da = pose_distance(X[i], Xj)
+    adopt = dt > cfg.resettle_min_dist or da > cfg.resettle_min_deg
+    landings.append(Landing(g0, i, X[i].copy(), Xj.copy(), np.nan, np.nan, bool(adopt)))
+    if not adopt:
+        return None
+    keyframes[:] = pre
+    if carver is not None:
+        idx = [k for k, j in enumerate(carver.indices) if j < g0]
+        carver.views = [carver.views[k] for k in idx]
+        carver.indices = [carver.indices[k] for k in idx]
+    X_OW = X_inv(Xj)
+    keyframes.append(Keyframe(i, Xj.copy(), o.P_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W, o.N_W,
+                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W, o.C))
+    if carver is not None:
+        carver.add(i, session.depth(i), Xj)
+    model = _model_from(keyframes, cfg.model_voxel)
+    X[i] = Xj
+    return icp_result(X_OW, o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist), model
 
 
 def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
