@@ -93,11 +93,12 @@ def dominant_normal(N: np.ndarray, d: np.ndarray, cos_min: float, min_frac: floa
     return n / np.linalg.norm(n)
 
 
-def face_plane(P: np.ndarray, N: np.ndarray, d: np.ndarray, cos_min: float, min_frac: float
-               ) -> tuple[np.ndarray, float] | None:
+def face_plane(P: np.ndarray, N: np.ndarray, d: np.ndarray, cos_min: float, min_frac: float,
+               flat_tol: float = 0.004, flat_frac: float = 0.8) -> tuple[np.ndarray, float] | None:
     """The plane (unit normal n oriented like d, offset n·p) of the points P (M,3) whose normals N (M,3) lie within
     acos(cos_min) of the unit direction d (at least ``min_frac`` of them and 10): normal from the smallest principal
-    axis of those within 1 cm of their median plane, offset the median. None when too few."""
+    axis of those within 1 cm of their median plane, offset the median. None when too few, or when fewer than
+    ``flat_frac`` of them lie within ``flat_tol`` of that plane (a curved surface, no face)."""
     n0 = dominant_normal(N, d, cos_min, min_frac)
     if n0 is None:
         return None
@@ -110,16 +111,20 @@ def face_plane(P: np.ndarray, N: np.ndarray, d: np.ndarray, cos_min: float, min_
     n = V[:, 0] * np.sign(V[:, 0] @ n0)
     if n @ n0 < np.cos(np.radians(15.0)):
         n = n0  # a thin strip: its principal axes do not give the face's normal
-    return n, float(np.median(F @ n))
+    d = float(np.median(F @ n))
+    if np.mean(np.abs(P[sel] @ n - d) < flat_tol) < flat_frac:
+        return None  # curved (an egg, a bottle's side): no flat face
+    return n, d
 
 
 def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
-                 face_cos: float = np.cos(np.radians(30.0))) -> np.ndarray:
+                 face_cos: float = np.cos(np.radians(30.0))) -> tuple[np.ndarray, bool]:
     """Pose (4,4) of the object after tipping about the horizontal unit axis h (3,) from rest pose X_r until its
     leading face lies on the table (see module docstring, step 2). Q_O, N_O (M,3): the pre-fall model.
     With the leading face in the model (``face_plane``), the turn is about the horizontal line where its plane meets
     the table, by the angle that lays its normal n_f on −z (h only picks the face); without it, 90° about h through
-    the model's extent along the tipping direction on the table, then lowered onto the table."""
+    the model's extent along the tipping direction on the table, then lowered onto the table.
+    Returns (pose, whether the leading face was found)."""
     R_r, t_r = X_r[:3, :3], X_r[:3, 3]
     P = Q_O @ R_r.T + t_r
     Nw = N_O @ R_r.T
@@ -137,7 +142,7 @@ def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarra
         ang = np.arctan2(np.cross(n_f, -z) @ h_f, n_f @ -z)
         R_turn = so3_exp(h_f * ang)
         R = R_turn @ R_r
-        return make_X(R, pivot + R_turn @ (t_r - pivot))
+        return make_X(R, pivot + R_turn @ (t_r - pivot)), True
     ext = float(np.max(P @ f))
     pivot = np.array([0.0, 0.0, table_height])
     pivot[:2] = (ext * f)[:2] + (c - (c @ f) * f)[:2]
@@ -145,7 +150,7 @@ def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarra
     R = R_turn @ R_r
     X = make_X(R, pivot + R_turn @ (t_r - pivot))
     X[2, 3] += table_height - float(np.min(Q_O @ R[2] + X[2, 3]))
-    return X
+    return X, False
 
 
 def reach_along(X: np.ndarray, Q_O: np.ndarray, P_W: np.ndarray, f: np.ndarray, max_shift: float,

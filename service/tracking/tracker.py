@@ -774,13 +774,24 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     if not pre:
         return None
     M = _model_from(pre, cfg.model_voxel)
-    Xj = landing_pose(X[r], h, M.Q, M.N, session.table_height)
+    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height)
     Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift,
                       max_yaw_deg=cfg.resettle_max_yaw_deg)
     Xj = reach_along(Xj, M.Q, o.P_W, np.cross(h, [0.0, 0.0, 1.0]), cfg.resettle_max_shift)
     dt, da = pose_distance(X[i], Xj)
-    adopt = dt > cfg.resettle_min_dist or da > cfg.resettle_min_deg
-    landings.append(Landing(g0, i, X[i].copy(), Xj.copy(), np.nan, np.nan, bool(adopt)))
+    view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
+    view.add(i, session.depth(i), np.eye(4))  # the frame's own depth, points given in W
+    Qs = M.Q[:: max(1, len(M.Q) // 2000)]
+
+    def seen(Xc: np.ndarray) -> float:  # fraction of the pre-fall model where frame i sees the table or background
+        return float(np.mean(view.seen_through(Qs @ Xc[:3, :3].T + Xc[:3, 3])))
+
+    s_old, s_new = seen(X[i]), seen(Xj)
+    # adopted only for an object that lands on a flat face, when the tracked pose is shown wrong (the pre-fall model
+    # placed with it covers pixels where the frame sees the table or background) and the joined one is not
+    adopt = (dt > cfg.resettle_min_dist or da > cfg.resettle_min_deg) and face and s_old >= cfg.resettle_seen \
+        and s_new <= 0.5 * s_old
+    landings.append(Landing(g0, i, X[i].copy(), Xj.copy(), s_old, s_new, bool(adopt)))
     if not adopt:
         return None
     keyframes[:] = pre

@@ -319,10 +319,11 @@ class TrackingConfig:
     # the settled object after a topple's landing (service.tracking.resettle; docs/tracking.md "Settled object joined
     # by the fall's physics"): resettle_delay frames after the last fast step of the loop (> settle_fast_deg per
     # frame), when the steps from resettle_tip_deg per frame on turned >= resettle_min_tip_deg about a horizontal
-    # axis, the pose of the pre-fall model tipped about its leading bottom edge onto its leading face (corrected by
-    # the faces both views show, at most resettle_max_shift / resettle_max_yaw_deg) replaces the tracked pose when
-    # they differ by resettle_min_deg / resettle_min_dist; the fall's keyframes are dropped, the frame becomes a
-    # keyframe with all its points and the fall is registered backwards from it
+    # axis, the pose of the pre-fall model tipped about its leading bottom edge onto its leading (flat) face (corrected
+    # by the faces both views show, at most resettle_max_shift / resettle_max_yaw_deg; yaw 0: not corrected) replaces
+    # the tracked pose when they differ by resettle_min_deg / resettle_min_dist and the frame sees through at least
+    # resettle_seen of the pre-fall model at the tracked pose (at most half that at the new one); the fall's keyframes
+    # are dropped, the frame becomes a keyframe with all its points and the fall is registered backwards from it
     resettle: bool = False
     resettle_delay: int = 6
     resettle_tip_deg: float = 0.3
@@ -331,6 +332,7 @@ class TrackingConfig:
     resettle_min_dist: float = 0.02
     resettle_max_shift: float = 0.03
     resettle_max_yaw_deg: float = 0.0
+    resettle_seen: float = 0.1  # ... and the tracked pose puts this fraction of the pre-fall model where the frame sees through
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -412,7 +414,7 @@ class TrackingConfig:
         if not 0 <= self.spin_roll_tol < 1:
             raise ValueError(f"TrackingConfig.spin_roll_tol must be in [0, 1), not {self.spin_roll_tol!r}")
         for name in ("resettle_tip_deg", "resettle_min_tip_deg", "resettle_min_deg", "resettle_min_dist",
-                     "resettle_max_shift", "resettle_max_yaw_deg"):
+                     "resettle_max_shift", "resettle_max_yaw_deg", "resettle_seen"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not self.resettle_delay >= 1:
