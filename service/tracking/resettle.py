@@ -14,18 +14,26 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    turning more than ``fast_deg`` per frame, or a loss over which the pose turned more than half that per frame),
    with no fast step since. The fall started at g0 (walking back while the steps turn more than ``fall_deg`` per
    frame), and the tipping at r ≤ g0 (walking back while steps turn more than ``tip_deg`` per frame): the turn
-   tracked from r to the frame before the fast step must be at least ``min_tip_deg`` about a nearly horizontal axis h (|h_z| ≤ 0.35).
+   tracked from r to the frame before the fast step must be at least ``min_tip_deg`` about a nearly horizontal
+   axis h (|h_z| ≤ 0.35).
 2. Join (``landing_pose``), from the pre-fall model Q (keyframes before g0) at the rest pose X_r: the side face
-   that leads (the model's normals within 30° of the tipping direction f = h × z, their mean n_f) is turned about
-   the pivot line — on the table, at the model's extent along f — until n_f points down (90° without such a face);
-   then the pose is lowered or raised so that the model's lowest points (the leading face) rest on the table.
-   Rotation about the vertical and the horizontal position are then corrected by the faces both views show
-   (``face_offsets``: per dominant direction of the model's normals, the plane offset of the model's points and of
-   the frame's points with normals within 20° of it; corrections above ``max_shift`` are ignored).
-3. When the join differs from the tracked pose by more than ``min_deg`` / ``min_dist``, frame i takes it, the
-   keyframes from g0 on are dropped and frame i becomes a keyframe with all its points (the settled object's model
-   of its own, joined to the pre-fall one by the pose); the loop continues from it and the fall's frames are
-   registered backwards from it after the loop (``tracker._settle_backward``).
+   that leads (``face_plane``: the model's points with normals within 30° of the tipping direction f = h × z, a
+   plane fitted to them; 80 % of them within 4 mm of it, else no face — an egg, a bottle's side) is turned about
+   the line where its plane meets the table, by the angle that lays its normal on −z (h only picks the face). It
+   then lies on the table; the turn's direction comes from the face, not from the lagging tracked turn.
+   Horizontal position corrected by the faces both views show (``face_offsets``: per dominant horizontal
+   direction of the model's normals, the plane offset of the model's points and of the frame's points with
+   normals within 20° of it; corrections above ``max_shift`` are left out; optionally the yaw too) and by the
+   reach of the frame's points along f (``reach_along``: the model's top end must reach at least as far).
+3. When the object has a leading face, the join differs from the tracked pose by more than ``min_deg`` /
+   ``min_dist`` and puts no more of the pre-fall model where frame i sees the table or background than the tracked
+   pose does (the frame's own depth as free space), frame i takes it, the keyframes from g0 on are dropped and
+   frame i becomes a keyframe with all its points (the settled object's model of its own, joined to the pre-fall
+   one by the pose); the loop continues from it and the fall's frames are registered backwards from it after the
+   loop (``tracker._settle_backward``).
+What is left: the join is 1–3° / 5–18 mm off on the development topples, mostly along the tipping direction (the
+lab's cartons land 6–15 mm beyond the pure turn about the edge) where no face is seen in both views; later frames
+keep that offset (the bundle adjustment finds too little shared surface to remove it).
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
 manipulation"); plane-based registration (Pathak et al. 2010, "Fast registration based on noisy planes").
 """
@@ -45,7 +53,8 @@ def find_fall(X: np.ndarray, tracked: np.ndarray, i: int, fast_deg: float, fall_
               min_tip_deg: float, delay: int, after: int = 0) -> tuple[int, int, int, np.ndarray] | None:
     """(r, g0, f, h) when frame i (tracked) comes ``delay`` or more frames after the last fast step f of the track
     and within 2 × delay of it (the first such tracked frame): r the start of the tipping, g0 the start of the fall,
-    h (3,) the horizontal unit axis of the turn tracked from r to the last frame before f (in W). None when there is no such step after ``after`` or the turn is not a tip.
+    h (3,) the horizontal unit axis of the turn tracked from r to the last frame before f (in W). None when there is
+    no such step after ``after`` or the turn is not a tip.
     X (N,4,4) poses so far, tracked (N,)."""
     idx = [j for j in range(max(0, after), i + 1) if tracked[j]]
     if len(idx) < 3 or idx[-1] != i:

@@ -787,10 +787,10 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
         return float(np.mean(view.seen_through(Qs @ Xc[:3, :3].T + Xc[:3, 3])))
 
     s_old, s_new = seen(X[i]), seen(Xj)
-    # adopted only for an object that lands on a flat face, when the tracked pose is shown wrong (the pre-fall model
-    # placed with it covers pixels where the frame sees the table or background) and the joined one is not
-    adopt = (dt > cfg.resettle_min_dist or da > cfg.resettle_min_deg) and face and s_old >= cfg.resettle_seen \
-        and s_new <= 0.5 * s_old
+    # adopted only for an object that lands on a flat face, when the joined pose is at least as consistent with the
+    # frame's free space as the tracked one (the pre-fall model placed with it covers no more pixels where the frame
+    # sees the table or background); a wrong track need not be shown wrong by that test (its model fits the upper part)
+    adopt = (dt > cfg.resettle_min_dist or da > cfg.resettle_min_deg) and face and s_new <= s_old + cfg.resettle_seen
     landings.append(Landing(g0, i, X[i].copy(), Xj.copy(), s_old, s_new, bool(adopt)))
     if not adopt:
         return None

@@ -321,18 +321,19 @@ class TrackingConfig:
     # frame), when the steps from resettle_tip_deg per frame on turned >= resettle_min_tip_deg about a horizontal
     # axis, the pose of the pre-fall model tipped about its leading bottom edge onto its leading (flat) face (corrected
     # by the faces both views show, at most resettle_max_shift / resettle_max_yaw_deg; yaw 0: not corrected) replaces
-    # the tracked pose when they differ by resettle_min_deg / resettle_min_dist and the frame sees through at least
-    # resettle_seen of the pre-fall model at the tracked pose (at most half that at the new one); the fall's keyframes
-    # are dropped, the frame becomes a keyframe with all its points and the fall is registered backwards from it
+    # the tracked pose when they differ by resettle_min_deg / resettle_min_dist (the join itself is 1-3 deg / 5-18 mm
+    # off on the development topples) and the frame sees through at most resettle_seen more of the pre-fall model at
+    # the new pose than at the tracked one; the fall's keyframes are dropped, the frame becomes a keyframe with all
+    # its points and the fall is registered backwards from it
     resettle: bool = False
     resettle_delay: int = 6
     resettle_tip_deg: float = 0.3
     resettle_min_tip_deg: float = 8.0
-    resettle_min_deg: float = 5.0
-    resettle_min_dist: float = 0.02
+    resettle_min_deg: float = 8.0
+    resettle_min_dist: float = 0.03
     resettle_max_shift: float = 0.03
     resettle_max_yaw_deg: float = 0.0
-    resettle_seen: float = 0.1  # ... and the tracked pose puts this fraction of the pre-fall model where the frame sees through
+    resettle_seen: float = 0.02
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
