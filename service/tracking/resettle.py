@@ -61,6 +61,8 @@ def find_fall(X: np.ndarray, tracked: np.ndarray, i: int, fast_deg: float, fall_
         return None
     fast = None
     for k, j in zip(idx[:-1], idx[1:]):
+        if i - j >= 2 * delay:
+            continue  # a fast step that old is not looked at (and a later one would be the last)
         da = _step(X, k, j)
         if da > fast_deg or (j - k > 1 and da > 0.5 * fast_deg):
             fast = j
@@ -107,7 +109,8 @@ def face_plane(P: np.ndarray, N: np.ndarray, d: np.ndarray, cos_min: float, min_
     """The plane (unit normal n oriented like d, offset n·p) of the points P (M,3) whose normals N (M,3) lie within
     acos(cos_min) of the unit direction d (at least ``min_frac`` of them and 10): normal from the smallest principal
     axis of those within 1 cm of their median plane, offset the median. None when too few, or when fewer than
-    ``flat_frac`` of them lie within ``flat_tol`` of that plane (a curved surface, no face)."""
+    ``flat_frac`` of the points with normals within 45° of n lie within ``flat_tol`` of that plane (a curved
+    surface such as the lab's egg, 6.5 × 9 cm: its 45° cap is 9 mm deep; no face)."""
     n0 = dominant_normal(N, d, cos_min, min_frac)
     if n0 is None:
         return None
@@ -121,7 +124,8 @@ def face_plane(P: np.ndarray, N: np.ndarray, d: np.ndarray, cos_min: float, min_
     if n @ n0 < np.cos(np.radians(15.0)):
         n = n0  # a thin strip: its principal axes do not give the face's normal
     d = float(np.median(F @ n))
-    if np.mean(np.abs(P[sel] @ n - d) < flat_tol) < flat_frac:
+    wide = N @ n > np.cos(np.radians(45.0))  # a box face has no neighbour within 45°; a curved cap keeps going
+    if np.mean(np.abs(P[wide] @ n - d) < flat_tol) < flat_frac:
         return None  # curved (an egg, a bottle's side): no flat face
     return n, d
 

@@ -325,7 +325,7 @@ class TrackingConfig:
     # off on the development topples) and the frame sees through at most resettle_seen more of the pre-fall model at
     # the new pose than at the tracked one; the fall's keyframes are dropped, the frame becomes a keyframe with all
     # its points and the fall is registered backwards from it
-    resettle: bool = False
+    resettle: bool = True  # on: evaluation 710 15.69 deg / 58.55 mm -> 2.72 deg / 6.31 mm median, all others identical
     resettle_delay: int = 6
     resettle_tip_deg: float = 0.3
     resettle_min_tip_deg: float = 8.0

@@ -104,3 +104,21 @@ def test_find_fall_of_a_topple_not_of_a_push():
         X[i] = make_X(so3_exp(np.array([0, 0, 1.0]) * np.radians(ang[i])), np.zeros(3))
     assert find_fall(X, tracked, 39, 8.0, 2.0, 0.3, 8.0, 6) is None
     assert np.allclose(X_inv(X[0]), np.eye(4))
+
+
+def test_no_leading_face_on_a_curved_body():
+    from service.tracking.resettle import face_plane
+
+    rng = np.random.default_rng(5)
+    d = np.array([0.0, 1.0, 0.0])
+    # an ellipsoid (egg-like, 3 x 3 x 4.5 cm half axes): normals within 30° of d exist, but on no plane
+    u = rng.normal(size=(4000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    ax = np.array([0.03, 0.03, 0.045])
+    P = u * ax
+    N = P / ax**2
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    assert face_plane(P, N, d, np.cos(np.radians(30.0)), 0.03) is None
+    Q, Nq = box_faces()
+    n, off = face_plane(Q, Nq, d, np.cos(np.radians(30.0)), 0.03)
+    assert n @ d > 0.999 and abs(off - SIZE[1] / 2) < 1e-3
