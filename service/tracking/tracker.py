@@ -332,7 +332,9 @@ class TrackResult:
     kf_log: list[dict] = field(default_factory=list)  # per keyframe candidate: index, far, new_frac, added, accepted
     n_feat: np.ndarray | None = None  # (N,2) feature correspondences used per frame: tracking, final pass
     spin: "SpinResult | None" = None  # spin closure of a body of revolution (cfg.spin_closure)
-    landings: list = field(default_factory=list)  # settle.Landing of every fast gap checked (cfg.settle)
+    landings: list = field(default_factory=list)  # settle.Landing of every fast gap checked (cfg.settle) and of
+    # every topple landing joined (cfg.resettle: X_new the join; score_old / score_new the fractions of the pre-fall
+    # model the frame sees through at the tracked / joined pose)
 
 
 def track(session, cfg: TrackingConfig, progress: Progress = None) -> TrackResult:
