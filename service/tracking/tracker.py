@@ -24,6 +24,9 @@ meets the table and rejects poses through the table or where the frame sees thro
 (``service.tracking.landing``); ``final_neighbors`` re-registers fast frames from their neighbours' final poses.
 Fast-motion gaps (``settle``, off): a still run after a fast fall is re-localised against the model from before the
 fall, the fall's keyframes dropped and its frames registered backwards (``service.tracking.settle``).
+Topple landings (``resettle``, on): the pre-fall model tipped about its leading bottom edge onto its leading face
+replaces a track far from it a few frames after the landing, the settled frame a keyframe with all its points
+(``service.tracking.resettle``).
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
 normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
 or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
@@ -329,7 +332,9 @@ class TrackResult:
     kf_log: list[dict] = field(default_factory=list)  # per keyframe candidate: index, far, new_frac, added, accepted
     n_feat: np.ndarray | None = None  # (N,2) feature correspondences used per frame: tracking, final pass
     spin: "SpinResult | None" = None  # spin closure of a body of revolution (cfg.spin_closure)
-    landings: list = field(default_factory=list)  # settle.Landing of every fast gap checked (cfg.settle)
+    landings: list = field(default_factory=list)  # settle.Landing of every fast gap checked (cfg.settle) and of
+    # every topple landing joined (cfg.resettle: X_new the join; score_old / score_new the fractions of the pre-fall
+    # model the frame sees through at the tracked / joined pose)
 
 
 def track(session, cfg: TrackingConfig, progress: Progress = None) -> TrackResult:
@@ -475,6 +480,15 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 frac[i], rmse[i] = best.inlier_frac, best.rmse
                 last[:] = [i]
                 if sil_st:
+                    sil_Q = _sil_model(model, keyframes, rims, cfg)
+        if cfg.resettle:  # after a topple's landing: the pre-fall model tipped onto its leading face
+            rel = _resettle_check(session, i, o, X, tracked, keyframes, carver, landings, cfg)
+            if rel is not None:
+                best, model = rel
+                frac[i], rmse[i] = best.inlier_frac, best.rmse
+                last[:] = [i]
+                if sil_st:
+                    rims[i] = _rim(session, i, cfg)
                     sil_Q = _sil_model(model, keyframes, rims, cfg)
         # keyframe?
         dists = [pose_distance(kf.X_WO, X[i]) for kf in keyframes]
@@ -741,6 +755,63 @@ def _settle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.ndarr
         carver.indices = [carver.indices[k] for k in idx]
     X[i] = best.X_WO
     return best, M
+
+
+def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.ndarray, keyframes: list[Keyframe],
+                    carver: "FreeSpace | None", landings: list, cfg: TrackingConfig
+                    ) -> tuple[IcpResult, ObjectModel] | None:
+    """Frame i (just tracked) comes ``resettle_delay`` frames after a topple's fast landing
+    (``resettle.find_fall``): its pose from the pre-fall model tipped onto its leading face
+    (``resettle.landing_pose``, ``resettle.face_offsets``). When that pose differs from the tracked one by more than
+    ``resettle_min_deg`` / ``resettle_min_dist``, the keyframes from the fall's start on are dropped (``keyframes``,
+    ``carver`` changed in place), X[i] takes it and frame i becomes a keyframe with all its points; returns (the ICP
+    result at the new pose, the new model), else None. Every fall checked is appended to ``landings``."""
+    from service.tracking.geometry import icp_result
+    from service.tracking.resettle import face_offsets, find_fall, landing_pose, reach_along
+    from service.tracking.settle import Landing
+
+    ev = find_fall(X, tracked, i, cfg.settle_fast_deg, cfg.settle_fall_deg, cfg.resettle_tip_deg,
+                   cfg.resettle_min_tip_deg, cfg.resettle_delay, after=max([ld.i for ld in landings], default=0))
+    if ev is None:
+        return None
+    r, g0, _, h = ev
+    pre = [kf for kf in keyframes if kf.index < g0]
+    if not pre:
+        return None
+    M = _model_from(pre, cfg.model_voxel)
+    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height)
+    Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift,
+                      max_yaw_deg=cfg.resettle_max_yaw_deg)
+    Xj = reach_along(Xj, M.Q, o.P_W, np.cross(h, [0.0, 0.0, 1.0]), cfg.resettle_max_shift)
+    dt, da = pose_distance(X[i], Xj)
+    view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
+    view.add(i, session.depth(i), np.eye(4))  # the frame's own depth, points given in W
+    Qs = M.Q[:: max(1, len(M.Q) // 2000)]
+
+    def seen(Xc: np.ndarray) -> float:  # fraction of the pre-fall model where frame i sees the table or background
+        return float(np.mean(view.seen_through(Qs @ Xc[:3, :3].T + Xc[:3, 3])))
+
+    s_old, s_new = seen(X[i]), seen(Xj)
+    # adopted only for an object that lands on a flat face, when the joined pose is at least as consistent with the
+    # frame's free space as the tracked one (the pre-fall model placed with it covers no more pixels where the frame
+    # sees the table or background); a wrong track need not be shown wrong by that test (its model fits the upper part)
+    adopt = (dt > cfg.resettle_min_dist or da > cfg.resettle_min_deg) and face and s_new <= s_old + cfg.resettle_seen
+    landings.append(Landing(g0, i, X[i].copy(), Xj.copy(), s_old, s_new, bool(adopt)))
+    if not adopt:
+        return None
+    keyframes[:] = pre
+    if carver is not None:
+        idx = [k for k, j in enumerate(carver.indices) if j < g0]
+        carver.views = [carver.views[k] for k in idx]
+        carver.indices = [carver.indices[k] for k in idx]
+    X_OW = X_inv(Xj)
+    keyframes.append(Keyframe(i, Xj.copy(), o.P_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W, o.N_W,
+                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W, o.C))
+    if carver is not None:
+        carver.add(i, session.depth(i), Xj)
+    model = _model_from(keyframes, cfg.model_voxel)
+    X[i] = Xj
+    return icp_result(X_OW, o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist), model
 
 
 def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,

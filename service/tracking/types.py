@@ -316,6 +316,24 @@ class TrackingConfig:
     spin_roll_rate_deg: float = 1.0
     spin_roll_agree: float = 0.3
     spin_roll_tol: float = 0.2  # a texture within this fraction of the roll is kept (the roll's own error)
+    # the settled object after a topple's landing (service.tracking.resettle; docs/tracking.md "Settled object joined
+    # by the fall's physics"): resettle_delay frames after the last fast step of the loop (> settle_fast_deg per
+    # frame), when the steps from resettle_tip_deg per frame on turned >= resettle_min_tip_deg about a horizontal
+    # axis, the pose of the pre-fall model tipped about its leading bottom edge onto its leading (flat) face (corrected
+    # by the faces both views show, at most resettle_max_shift / resettle_max_yaw_deg; yaw 0: not corrected) replaces
+    # the tracked pose when they differ by resettle_min_deg / resettle_min_dist (the join itself is 1-3 deg / 5-18 mm
+    # off on the development topples) and the frame sees through at most resettle_seen more of the pre-fall model at
+    # the new pose than at the tracked one; the fall's keyframes are dropped, the frame becomes a keyframe with all
+    # its points and the fall is registered backwards from it
+    resettle: bool = True  # on: evaluation 710 15.69 deg / 58.55 mm -> 2.72 deg / 6.31 mm median, all others identical
+    resettle_delay: int = 6
+    resettle_tip_deg: float = 0.3
+    resettle_min_tip_deg: float = 8.0
+    resettle_min_deg: float = 8.0
+    resettle_min_dist: float = 0.03
+    resettle_max_shift: float = 0.03
+    resettle_max_yaw_deg: float = 0.0
+    resettle_seen: float = 0.02
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -396,6 +414,12 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_roll_agree must be in [0, 1], not {self.spin_roll_agree!r}")
         if not 0 <= self.spin_roll_tol < 1:
             raise ValueError(f"TrackingConfig.spin_roll_tol must be in [0, 1), not {self.spin_roll_tol!r}")
+        for name in ("resettle_tip_deg", "resettle_min_tip_deg", "resettle_min_deg", "resettle_min_dist",
+                     "resettle_max_shift", "resettle_max_yaw_deg", "resettle_seen"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        if not self.resettle_delay >= 1:
+            raise ValueError(f"TrackingConfig.resettle_delay must be >= 1, not {self.resettle_delay!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages``, ``color_stages`` or ``sil_stages`` (comma-separated; ValueError for

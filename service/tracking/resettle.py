@@ -1,0 +1,238 @@
+"""The settled object after a topple's landing, joined to the pre-fall model by the fall's physics.
+
+A topple ends with 1–3 frames turning 14–16° each while the occluder may hide most of the object; the tracking
+loop can lose the object there and carry on at a consistent wrong pose (development milk_carton topple 820:
+107 mm / 9° off from the landing to the end). A re-localisation of the settled object against the pre-fall model
+cannot fix it: the pre-fall model holds mostly the object's upper part, the settled view mostly surface never seen
+before (``service.tracking.settle``, docs/tracking.md), and the lab's six-tile print gives no ORB match between
+the two views either (no side is seen both before and after the fall in those sessions). What they do share is the
+motion between them: a topple is a rotation about the bottom edge on the table in the direction it started to tip,
+ending when the side face that led lies on the table.
+
+Mechanism (in the tracking loop, ``tracker._resettle_check``):
+1. Detection (``find_fall``): frame i is tracked ``delay`` frames after the last fast step of the loop (a step
+   turning more than ``fast_deg`` per frame, or a loss over which the pose turned more than half that per frame),
+   with no fast step since. The fall started at g0 (walking back while the steps turn more than ``fall_deg`` per
+   frame), and the tipping at r ≤ g0 (walking back while steps turn more than ``tip_deg`` per frame): the turn
+   tracked from r to the frame before the fast step must be at least ``min_tip_deg`` about a nearly horizontal
+   axis h (|h_z| ≤ 0.35).
+2. Join (``landing_pose``), from the pre-fall model Q (keyframes before g0) at the rest pose X_r: the side face
+   that leads (``face_plane``: the model's points with normals within 30° of the tipping direction f = h × z, a
+   plane fitted to them; 80 % of them within 4 mm of it, else no face — an egg, a bottle's side) is turned about
+   the line where its plane meets the table, by the angle that lays its normal on −z (h only picks the face). It
+   then lies on the table; the turn's direction comes from the face, not from the lagging tracked turn.
+   Horizontal position corrected by the faces both views show (``face_offsets``: per dominant horizontal
+   direction of the model's normals, the plane offset of the model's points and of the frame's points with
+   normals within 20° of it; corrections above ``max_shift`` are left out; optionally the yaw too) and by the
+   reach of the frame's points along f (``reach_along``: the model's top end must reach at least as far).
+3. When the object has a leading face, the join differs from the tracked pose by more than ``min_deg`` /
+   ``min_dist`` and puts no more of the pre-fall model where frame i sees the table or background than the tracked
+   pose does (the frame's own depth as free space), frame i takes it, the keyframes from g0 on are dropped and
+   frame i becomes a keyframe with all its points (the settled object's model of its own, joined to the pre-fall
+   one by the pose); the loop continues from it and the fall's frames are registered backwards from it after the
+   loop (``tracker._settle_backward``).
+What is left: the join is 1–3° / 5–18 mm off on the development topples, mostly along the tipping direction (the
+lab's cartons land 6–15 mm beyond the pure turn about the edge) where no face is seen in both views; later frames
+keep that offset (the bundle adjustment finds too little shared surface to remove it).
+References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
+manipulation"); plane-based registration (Pathak et al. 2010, "Fast registration based on noisy planes").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from service.transforms import X_inv, make_X, pose_distance, so3_exp, so3_log
+
+
+def _step(X: np.ndarray, k: int, j: int) -> float:
+    return pose_distance(X[k], X[j])[1] / max(1, j - k)
+
+
+def find_fall(X: np.ndarray, tracked: np.ndarray, i: int, fast_deg: float, fall_deg: float, tip_deg: float,
+              min_tip_deg: float, delay: int, after: int = 0) -> tuple[int, int, int, np.ndarray] | None:
+    """(r, g0, f, h) when frame i (tracked) comes ``delay`` or more frames after the last fast step f of the track
+    and within 2 × delay of it (the first such tracked frame): r the start of the tipping, g0 the start of the fall,
+    h (3,) the horizontal unit axis of the turn tracked from r to the last frame before f (in W). None when there is
+    no such step after ``after`` or the turn is not a tip.
+    X (N,4,4) poses so far, tracked (N,)."""
+    idx = [j for j in range(max(0, after), i + 1) if tracked[j]]
+    if len(idx) < 3 or idx[-1] != i:
+        return None
+    fast = None
+    for k, j in zip(idx[:-1], idx[1:]):
+        if i - j >= 2 * delay:
+            continue  # a fast step that old is not looked at (and a later one would be the last)
+        da = _step(X, k, j)
+        if da > fast_deg or (j - k > 1 and da > 0.5 * fast_deg):
+            fast = j
+    if fast is None or not (delay <= i - fast < 2 * delay):
+        return None
+    # only the first tracked frame at least `delay` after the fast step
+    if any(tracked[j] for j in range(fast + delay, i)):
+        return None
+    pre = [j for j in idx if j < fast]
+    if len(pre) < 3:
+        return None
+    # fall start g0: walk back while the steps turn faster than fall_deg per frame
+    p = len(pre) - 1
+    while p > 0 and _step(X, pre[p - 1], pre[p]) > fall_deg:
+        p -= 1
+    g0 = pre[p]
+    q = p
+    while q > 0 and _step(X, pre[q - 1], pre[q]) > tip_deg:
+        q -= 1
+    r = pre[q]
+    w = so3_log(X[pre[-1]][:3, :3] @ X[r][:3, :3].T)  # the whole turn tracked before the fast step
+    ang = np.degrees(np.linalg.norm(w))
+    if ang < min_tip_deg:
+        return None
+    h = w / np.linalg.norm(w)
+    if abs(h[2]) > 0.35:
+        return None  # not a tip about an edge on the table
+    h = np.array([h[0], h[1], 0.0])
+    return r, g0, fast, h / np.linalg.norm(h)
+
+
+def dominant_normal(N: np.ndarray, d: np.ndarray, cos_min: float, min_frac: float) -> np.ndarray | None:
+    """Mean (unit) of the normals N (M,3) within acos(cos_min) of the unit direction d, when at least ``min_frac``
+    of them are; else None."""
+    sel = N @ d > cos_min
+    if sel.sum() < max(10, min_frac * len(N)):
+        return None
+    n = N[sel].mean(0)
+    return n / np.linalg.norm(n)
+
+
+def face_plane(P: np.ndarray, N: np.ndarray, d: np.ndarray, cos_min: float, min_frac: float,
+               flat_tol: float = 0.004, flat_frac: float = 0.8) -> tuple[np.ndarray, float] | None:
+    """The plane (unit normal n oriented like d, offset n·p) of the points P (M,3) whose normals N (M,3) lie within
+    acos(cos_min) of the unit direction d (at least ``min_frac`` of them and 10): normal from the smallest principal
+    axis of those within 1 cm of their median plane, offset the median. None when too few, or when fewer than
+    ``flat_frac`` of the points with normals within 45° of n lie within ``flat_tol`` of that plane (a curved
+    surface such as the lab's egg, 6.5 × 9 cm: its 45° cap is 9 mm deep; no face)."""
+    n0 = dominant_normal(N, d, cos_min, min_frac)
+    if n0 is None:
+        return None
+    sel = N @ d > cos_min
+    F = P[sel]
+    F = F[np.abs((F - np.median(F, 0)) @ n0) < 0.01]
+    if len(F) < 10:
+        return None
+    w, V = np.linalg.eigh(np.cov((F - F.mean(0)).T))
+    n = V[:, 0] * np.sign(V[:, 0] @ n0)
+    if n @ n0 < np.cos(np.radians(15.0)):
+        n = n0  # a thin strip: its principal axes do not give the face's normal
+    d = float(np.median(F @ n))
+    wide = N @ n > np.cos(np.radians(45.0))  # a box face has no neighbour within 45°; a curved cap keeps going
+    if np.mean(np.abs(P[wide] @ n - d) < flat_tol) < flat_frac:
+        return None  # curved (an egg, a bottle's side): no flat face
+    return n, d
+
+
+def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
+                 face_cos: float = np.cos(np.radians(30.0))) -> tuple[np.ndarray, bool]:
+    """Pose (4,4) of the object after tipping about the horizontal unit axis h (3,) from rest pose X_r until its
+    leading face lies on the table (see module docstring, step 2). Q_O, N_O (M,3): the pre-fall model.
+    With the leading face in the model (``face_plane``), the turn is about the horizontal line where its plane meets
+    the table, by the angle that lays its normal n_f on −z (h only picks the face); without it, 90° about h through
+    the model's extent along the tipping direction on the table, then lowered onto the table.
+    Returns (pose, whether the leading face was found)."""
+    R_r, t_r = X_r[:3, :3], X_r[:3, 3]
+    P = Q_O @ R_r.T + t_r
+    Nw = N_O @ R_r.T
+    z = np.array([0.0, 0.0, 1.0])
+    f = np.cross(h, z)  # the top moves along f for a positive turn about h
+    c = P.mean(0)
+    plane = face_plane(P, Nw, f, face_cos, 0.03)
+    if plane is not None and np.hypot(*plane[0][:2]) > 0.7:
+        n_f, d_f = plane
+        u = np.array([n_f[0], n_f[1], 0.0])
+        u /= np.linalg.norm(u)
+        h_f = np.cross(z, u)  # horizontal, normal to n_f: the edge the object turns about
+        base = np.array([c[0], c[1], table_height])
+        pivot = base + (d_f - n_f @ base) / (n_f @ u) * u
+        ang = np.arctan2(np.cross(n_f, -z) @ h_f, n_f @ -z)
+        R_turn = so3_exp(h_f * ang)
+        R = R_turn @ R_r
+        return make_X(R, pivot + R_turn @ (t_r - pivot)), True
+    ext = float(np.max(P @ f))
+    pivot = np.array([0.0, 0.0, table_height])
+    pivot[:2] = (ext * f)[:2] + (c - (c @ f) * f)[:2]
+    R_turn = so3_exp(h * np.pi / 2)
+    R = R_turn @ R_r
+    X = make_X(R, pivot + R_turn @ (t_r - pivot))
+    X[2, 3] += table_height - float(np.min(Q_O @ R[2] + X[2, 3]))
+    return X, False
+
+
+def reach_along(X: np.ndarray, Q_O: np.ndarray, P_W: np.ndarray, f: np.ndarray, max_shift: float,
+                q: float = 99.0) -> np.ndarray:
+    """Pose X (4,4) moved along the horizontal unit direction f (3,) so that the model Q_O (M,3) reaches at least as
+    far along f as the frame's points P_W (N,3) (``q``-th percentiles): every observed point belongs to the object,
+    so its end lies at least that far (the tipped object's top end leads along f); the frame may see less (an
+    occluder), so the model is never pulled back. Shifts above ``max_shift`` are left out."""
+    s = float(np.percentile(P_W @ f, q) - np.percentile((Q_O @ X[:3, :3].T + X[:3, 3]) @ f, q))
+    if 0.0 < s <= max_shift:
+        X = X.copy()
+        X[:3, 3] += s * f
+    return X
+
+
+def face_offsets(X: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, P_W: np.ndarray, N_W: np.ndarray,
+                 cos_face: float = np.cos(np.radians(20.0)), min_pts: int = 30, max_shift: float = 0.03,
+                 max_yaw_deg: float = 15.0) -> np.ndarray:
+    """Pose X (4,4) corrected about the vertical and horizontally by the faces the model (Q_O, N_O (M,3)) and the
+    frame (P_W, N_W (N,3)) both show: the dominant horizontal normal directions of the model placed with X (within
+    20°: a face) are matched to the frame's points with normals within 20°; yaw from the mean angle between matched
+    normals, then per face the difference of plane offsets (median) along its normal; the horizontal translation
+    solves those in least squares. Corrections above ``max_shift`` / ``max_yaw_deg`` are left out."""
+    R, t = X[:3, :3], X[:3, 3]
+    Qw = Q_O @ R.T + t
+    Nw = N_O @ R.T
+    faces = []
+    rest = np.ones(len(Nw), bool)
+    for _ in range(4):  # up to four horizontal face directions of the model
+        cand = rest & (np.abs(Nw[:, 2]) < 0.5)
+        if cand.sum() < min_pts:
+            break
+        # the densest direction among the candidates
+        sub = np.nonzero(cand)[0][:: max(1, cand.sum() // 400)]
+        cnt = [(np.sum(Nw[cand] @ Nw[k] > cos_face), k) for k in sub]
+        c, k = max(cnt)
+        if c < min_pts:
+            break
+        n = Nw[cand & (Nw @ Nw[k] > cos_face)].mean(0)
+        n[2] = 0.0
+        n /= np.linalg.norm(n)
+        sel = Nw @ n > cos_face
+        rest &= ~sel
+        selP = N_W @ n > cos_face
+        if sel.sum() >= min_pts and selP.sum() >= min_pts:
+            m = N_W[selP].mean(0)
+            m[2] = 0.0
+            m /= np.linalg.norm(m)
+            faces.append((n, m, Qw[sel], P_W[selP]))
+    if not faces:
+        return X
+    yaws = [np.arctan2(n[0] * m[1] - n[1] * m[0], n @ m) for n, m, _, _ in faces]
+    yaw = float(np.mean(yaws))
+    if abs(np.degrees(yaw)) > max_yaw_deg:
+        yaw = 0.0
+    c, s = np.cos(yaw), np.sin(yaw)
+    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    ctr = Qw.mean(0)
+    X2 = make_X(Rz @ R, Rz @ (t - ctr) + ctr)
+    A, b = [], []
+    for n, _, Qf, Pf in faces:
+        n2 = Rz @ n
+        d_m = float(np.median(((Qf - ctr) @ Rz.T + ctr) @ n2))
+        d_f = float(np.median(Pf @ n2))
+        if abs(d_f - d_m) <= max_shift:
+            A.append(n2[:2])
+            b.append(d_f - d_m)
+    if A:
+        sol, *_ = np.linalg.lstsq(np.array(A), np.array(b), rcond=None)
+        if np.linalg.norm(sol) <= max_shift:
+            X2[:2, 3] += sol
+    return X2

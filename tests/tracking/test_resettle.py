@@ -1,0 +1,124 @@
+"""The settled pose after a topple from the pre-fall model and the fall's physics (service.tracking.resettle)."""
+
+import numpy as np
+
+from service.tracking.resettle import face_offsets, find_fall, landing_pose, reach_along
+from service.transforms import X_inv, make_X, pose_distance, so3_exp
+
+SIZE = np.array([0.07, 0.07, 0.185])  # a milk carton standing, its centre at the origin of O
+
+
+def box_faces(step: float = 0.004, z_min: float = -1.0) -> tuple[np.ndarray, np.ndarray]:
+    """Points (M,3) and outward normals of the box's surface in O, the faces' points below z_min left out."""
+    P, N = [], []
+    hs = SIZE / 2
+    for ax in range(3):
+        for sgn in (-1.0, 1.0):
+            o = [a for a in range(3) if a != ax]
+            g = np.stack(np.meshgrid(np.arange(-hs[o[0]], hs[o[0]] + 1e-9, step),
+                                     np.arange(-hs[o[1]], hs[o[1]] + 1e-9, step)), -1).reshape(-1, 2)
+            p = np.zeros((len(g), 3))
+            p[:, o[0]], p[:, o[1]] = g[:, 0], g[:, 1]
+            p[:, ax] = sgn * hs[ax]
+            n = np.zeros((len(g), 3))
+            n[:, ax] = sgn
+            P.append(p)
+            N.append(n)
+    P, N = np.concatenate(P), np.concatenate(N)
+    keep = P[:, 2] >= z_min
+    return P[keep], N[keep]
+
+
+def settled_truth(X_r: np.ndarray, table: float) -> np.ndarray:
+    """The standing box X_r tipped by 90° about its bottom edge at +y (it falls toward +y, about the −x axis)."""
+    h = np.array([-1.0, 0.0, 0.0])
+    pivot = X_r[:3, 3] + np.array([0.0, SIZE[1] / 2, -SIZE[2] / 2])
+    R = so3_exp(h * np.pi / 2)
+    return make_X(R @ X_r[:3, :3], pivot + R @ (X_r[:3, 3] - pivot))
+
+
+def test_landing_pose_from_the_upper_part_only():
+    table = 0.0
+    X_r = make_X(np.eye(3), np.array([0.4, 0.1, table + SIZE[2] / 2]))
+    # the pre-fall model: what an elevated camera sees of the standing box, its upper part only (z > -1 cm in O)
+    Q, Nq = box_faces(z_min=-0.01)
+    vis = (Nq @ np.array([0.0, 1.0, 0.3])) > 0  # top and the +y face (the one that leads)
+    Q, Nq = Q[vis], Nq[vis]
+    rng = np.random.default_rng(3)
+    Q = Q + rng.normal(0, 0.0008, Q.shape)
+    truth = settled_truth(X_r, table)
+    # the tip axis seen by the loop lags and is 6° off the true one; the turn so far was 30°
+    h = so3_exp(np.array([0, 0, np.radians(6.0)])) @ np.array([-1.0, 0.0, 0.0])
+    X, face = landing_pose(X_r, h, Q, Nq, table)
+    assert face
+    dt, da = pose_distance(X, truth)
+    assert da < 1.0 and dt < 0.003, (da, dt)
+    # a 90° turn about the seen axis through the model's centre (no edge, no face): far off
+    Rn = so3_exp(h * np.pi / 2)
+    naive = make_X(Rn @ X_r[:3, :3], X_r[:3, 3])
+    assert pose_distance(naive, truth)[1] > 4.0 and pose_distance(naive, truth)[0] > 0.05
+
+
+def test_face_offsets_and_reach_correct_a_slide():
+    table = 0.0
+    X_r = make_X(np.eye(3), np.array([0.0, 0.0, SIZE[2] / 2]))
+    truth = settled_truth(X_r, table)
+    Q, Nq = box_faces(z_min=0.0)  # upper half: both x faces, both y faces and the top
+    # the settled frame sees the whole lying box from above: its points in W with normals facing up or toward +x
+    P, Np = box_faces()
+    Pw, Nw = P @ truth[:3, :3].T + truth[:3, 3], Np @ truth[:3, :3].T
+    seen = (Nw @ np.array([0.5, 0.0, 1.0])) > 0.1
+    Pw, Nw = Pw[seen], Nw[seen]
+    off = truth.copy()
+    off[:3, 3] += np.array([0.008, 0.0, 0.0])  # slid 8 mm along the x face's normal
+    fixed = face_offsets(off, Q, Nq, Pw, Nw)
+    assert pose_distance(fixed, truth)[0] < 0.001
+    # along the tipping direction (+y after the fall: the top end leads) the model must reach the seen points
+    short = truth.copy()
+    short[:3, 3] -= np.array([0.0, 0.01, 0.0])
+    assert pose_distance(reach_along(short, Q, Pw, np.array([0.0, 1.0, 0.0]), 0.03), truth)[0] < 0.002
+    # never pulled back (the frame may see less than the whole object)
+    far = truth.copy()
+    far[:3, 3] += np.array([0.0, 0.01, 0.0])
+    assert np.allclose(reach_along(far, Q, Pw, np.array([0.0, 1.0, 0.0]), 0.03), far)
+
+
+def test_find_fall_of_a_topple_not_of_a_push():
+    N = 60
+    X = np.tile(np.eye(4), (N, 1, 1))
+    h = np.array([np.cos(0.3), np.sin(0.3), 0.0])
+    ang = np.zeros(N)
+    ang[20:30] = np.linspace(0.5, 5.0, 10).cumsum()  # tipping starts slowly
+    ang[30:34] = ang[29] + np.array([10.0, 22.0, 36.0, 50.0])  # the fall, then lands
+    ang[34:] = ang[33]
+    for i in range(N):
+        X[i] = make_X(so3_exp(h * np.radians(ang[i])), np.zeros(3))
+    tracked = np.ones(N, bool)
+    tracked[32] = False  # lost at the landing
+    assert find_fall(X, tracked, 38, 8.0, 2.0, 0.3, 8.0, 6) is None  # too early
+    r, g0, f, hh = find_fall(X, tracked, 39, 8.0, 2.0, 0.3, 8.0, 6)
+    assert f == 33 and r == 19 and g0 == 22 and hh @ h > 0.999  # g0: the first step over 2°
+    assert find_fall(X, tracked, 40, 8.0, 2.0, 0.3, 8.0, 6) is None  # looked at once
+    # a fast turn about the vertical (a push that spins the object) is no tip
+    for i in range(N):
+        X[i] = make_X(so3_exp(np.array([0, 0, 1.0]) * np.radians(ang[i])), np.zeros(3))
+    assert find_fall(X, tracked, 39, 8.0, 2.0, 0.3, 8.0, 6) is None
+    assert np.allclose(X_inv(X[0]), np.eye(4))
+
+
+def test_no_leading_face_on_a_curved_body():
+    from service.tracking.resettle import face_plane
+
+    rng = np.random.default_rng(5)
+    d = np.array([0.0, 1.0, 0.0])
+    # an ellipsoid (egg-like, 3 x 3 x 4.5 cm half axes): normals within 30° of d exist, but on no plane
+    u = rng.normal(size=(4000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    ax = np.array([0.03, 0.03, 0.045])
+    P = u * ax
+    N = P / ax**2
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    assert face_plane(P, N, d, np.cos(np.radians(30.0)), 0.03) is None
+    Q, Nq = box_faces()
+    n, off = face_plane(Q, Nq, d, np.cos(np.radians(30.0)), 0.03)
+    assert n @ d > 0.999 and abs(off - SIZE[1] / 2) < 1e-3
