@@ -163,6 +163,7 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
     C = None if C is None else C[above]
     kp_W = np.zeros((0, 3))
     desc = None
+    gray = None  # the grey image, converted once for the ORB features and the spin closure's
     if cfg.features and n_mask > 0:
         gray = cv2.cvtColor(session.rgb(i), cv2.COLOR_RGB2GRAY)
         if cfg.feat_border_px > 0:  # keypoints whose patch reaches the silhouette or an occluder edge move with
@@ -191,7 +192,9 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
     if cfg.spin_closure and n_mask > 0:
         from service.tracking.spin import interior_features
 
-        spin_feats = interior_features(cv2.cvtColor(session.rgb(i), cv2.COLOR_RGB2GRAY), depth, mask, K, X_WC,
+        if gray is None:
+            gray = cv2.cvtColor(session.rgb(i), cv2.COLOR_RGB2GRAY)
+        spin_feats = interior_features(gray, depth, mask, K, X_WC,
                                        cfg.spin_border_px, cfg.spin_features)
     return FrameObs(P_W, N_W, kp_W, desc, n_mask, C, spin_feats)
 
