@@ -22,6 +22,8 @@ frozen frames 0287–0360, and the cube's size from the oriented box of the visi
     python benchmarks/tracking.py --only synth --surface-diag   # + where the surface error sits (surface_breakdown)
     python benchmarks/tracking.py --set new --cfg '{"ba_iters": 0, "refine_rounds": 2, "regauge_frame0": false}'
                                                   # the same cases with settings changed (here: before the BA)
+    python benchmarks/tracking.py --save /tmp/a   # + the stage's outputs per session in /tmp/a/<session>.npz
+    python benchmarks/tracking.py --compare /tmp/a /tmp/b   # largest differences between two such folders
 
 Each session runs in a fresh process so that its peak RSS (resource.getrusage) is its own. Timings on a shared
 machine are inflated; the load average and the process CPU time (≈ the wall time on an idle machine, the stage
@@ -180,7 +182,45 @@ def tracking_config(overrides: dict | None):
     return replace(TrackingConfig(), **over)
 
 
-def run_one(kind: str, path: Path, overrides: dict | None = None, diag: bool = False) -> dict:
+def save_outputs(out, path: Path) -> None:
+    """The stage's outputs as arrays (``--save``): poses, velocities, the SDF and the visible mesh and set, to check
+    that a change leaves them identical (``--compare``)."""
+    arrays = {"t": out.t, "X_WO": out.X_WO, "tracked": out.tracked, "v_WO_W": out.v_WO_W, "w_WO_O": out.w_WO_O,
+              "sdf_origin_O": out.sdf.origin_O, "sdf_voxel": np.array(out.sdf.voxel), "sdf_values": out.sdf.values,
+              "mesh_vertices": out.visible_mesh.vertices, "mesh_faces": out.visible_mesh.faces,
+              "visible_points_O": out.visible_points_O, "frames_lost": np.array(out.frames_lost)}
+    if out.sdf.observed is not None:
+        arrays["sdf_observed"] = out.sdf.observed
+    if out.spin_axis_O is not None:
+        arrays["spin_axis_O"] = out.spin_axis_O
+    if out.mask_strip_fraction is not None:
+        arrays["mask_strip_fraction"] = np.array(out.mask_strip_fraction)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(path, **arrays)
+
+
+def compare_saved(a: Path, b: Path) -> None:
+    """Per session saved in both folders: for every array, identical bits, or the largest absolute difference."""
+    for fa in sorted(a.glob("*.npz")):
+        fb = b / fa.name
+        if not fb.is_file():
+            print(f"{fa.stem}: not in {b}")
+            continue
+        A, B = np.load(fa), np.load(fb)
+        notes = []
+        for k in sorted(set(A.files) | set(B.files)):
+            if k not in A.files or k not in B.files:
+                notes.append(f"{k} only in one")
+            elif A[k].shape != B[k].shape:
+                notes.append(f"{k} shape {A[k].shape} vs {B[k].shape}")
+            elif not np.array_equal(A[k], B[k]):
+                d = np.abs(A[k].astype(float) - B[k].astype(float))
+                notes.append(f"{k} max |diff| {np.nanmax(d):.3g}")
+        print(f"{fa.stem:28s} " + ("identical (all arrays, bit for bit)" if not notes else "; ".join(notes)))
+
+
+def run_one(kind: str, path: Path, overrides: dict | None = None, diag: bool = False,
+            save: Path | None = None) -> dict:
     import trimesh
 
     from service.session import load_session
@@ -202,6 +242,8 @@ def run_one(kind: str, path: Path, overrides: dict | None = None, diag: bool = F
     ru = resource.getrusage(resource.RUSAGE_SELF)
     cpu = ru.ru_utime + ru.ru_stime - cpu0
     rss_gb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024**2
+    if save is not None:
+        save_outputs(out, save / f"{s.name}.npz")
     res = {"session": s.name, "frames": s.n_frames, "wall_s": wall, "cpu_s": cpu, "peak_rss_gb": rss_gb,
            "tracked": float(out.tracked.mean()), "visible_points": len(out.visible_points_O),
            "load_avg": os.getloadavg()[0], "marks_s": marks,
@@ -297,7 +339,13 @@ def main() -> None:
     ap.add_argument("--work", type=Path, default=Path("/tmp/vysics-bench-tracking"))
     ap.add_argument("--cfg", default="{}", help='TrackingConfig overrides as JSON, e.g. \'{"ba_iters": 0}\'')
     ap.add_argument("--surface-diag", action="store_true", help="also print where the surface error sits")
+    ap.add_argument("--save", type=Path, help="folder for the stage's outputs per session (<session>.npz)")
+    ap.add_argument("--compare", type=Path, nargs=2, metavar=("A", "B"),
+                    help="only compare two --save folders (identical bits or the largest difference per array)")
     a = ap.parse_args()
+    if a.compare:
+        compare_saved(*a.compare)
+        return
     try:
         cfg = json.loads(a.cfg)
         if not isinstance(cfg, dict):
@@ -306,7 +354,7 @@ def main() -> None:
     except (TypeError, ValueError) as e:  # json.JSONDecodeError is a ValueError
         ap.error(f"--cfg {a.cfg!r}: not a valid TrackingConfig override ({e})")
     if a.one:
-        print(json.dumps(run_one(a.kind, a.one, cfg, a.surface_diag)))
+        print(json.dumps(run_one(a.kind, a.one, cfg, a.surface_diag, a.save)))
         return
     print("command:", " ".join(shlex.quote(x) for x in [sys.executable] + sys.argv))
     rows = []
@@ -317,14 +365,17 @@ def main() -> None:
             rows.append(("synth", d))
     if a.only in (None, "real"):
         rows.append(("real", REAL))
+    cost = []
     for kind, d in rows:
         p = subprocess.run([sys.executable, __file__, "--one", str(d), "--kind", kind, "--cfg", a.cfg]
-                           + (["--surface-diag"] if a.surface_diag else []),
+                           + (["--surface-diag"] if a.surface_diag else [])
+                           + (["--save", str(a.save)] if a.save else []),
                            capture_output=True, text=True)
         if p.returncode:
             print(f"{d.name}: FAILED\n{p.stderr[-2000:]}")
             continue
         r = json.loads(p.stdout.strip().splitlines()[-1])
+        cost.append(r)
         if kind == "synth":
             print(f"{r['session']:28s} (true max rotation {r['gt_max_rotation_deg']:.0f}°, tilt {r['gt_max_tilt_deg']:.0f}°) "
                   f"rot med {r['rot_med_deg']:.2f}° max {r['rot_max_deg']:.2f}° | "
@@ -345,6 +396,12 @@ def main() -> None:
                   f"{np.round(r['mesh_hull_obb_extents_m'], 4).tolist()} m, V OBB "
                   f"{np.round(r['V_obb_extents_m'], 4).tolist()} m (cube 0.1048) | wall {r['wall_s']:.1f} s, CPU {r['cpu_s']:.1f} s, "
                   f"{r['peak_rss_gb']:.2f} GB (load {r['load_avg']:.1f}; cumulative s {_m(r)})")
+    if cost:  # the cost per session in one table (CPU = process user + system time of the stage's run)
+        print(f"{'session':28s} {'CPU s':>7s} {'wall s':>7s} {'peak GB':>8s} {'load':>5s}")
+        for r in cost:
+            print(f"{r['session']:28s} {r['cpu_s']:7.1f} {r['wall_s']:7.1f} {r['peak_rss_gb']:8.2f} {r['load_avg']:5.1f}")
+        print(f"{'total':28s} {sum(r['cpu_s'] for r in cost):7.1f} {sum(r['wall_s'] for r in cost):7.1f} "
+              f"{max(r['peak_rss_gb'] for r in cost):8.2f}")
 
 
 def _m(r: dict) -> str:

@@ -19,6 +19,7 @@ import numpy as np
 
 from service.errors import StageFailed
 from service.sdf import extract_mesh, fit_sdf
+from service.tracking.frames import FrameCache
 from service.tracking.masks import TrimmedMasks
 from service.tracking.tracker import track
 from service.tracking.types import TrackingConfig, TrackingInputs, TrackingOutputs
@@ -30,7 +31,8 @@ __all__ = ["run", "TrackingConfig", "TrackingInputs", "TrackingOutputs"]
 
 def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progress=None) -> TrackingOutputs:
     """Track the object of ``inputs.session`` and reconstruct its visible geometry (frame O)."""
-    s = inputs.session
+    # each image decoded once: the frames the visible-geometry passes read (if every frame is tracked) are kept
+    s = FrameCache(inputs.session, pinned=_passes_frames(np.ones(inputs.session.n_frames, bool), cfg))
     if s.n_frames < 2:
         raise StageFailed("tracking", f"session {s.name} has {s.n_frames} frame(s); tracking needs at least 2")
     if s.K.shape != (3, 3) or s.X_WC.shape != (4, 4):
@@ -45,6 +47,7 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
     tr = track(s, cfg, rep(0.0, 0.6))
     v, w = velocities(s.frame_times, tr.X_WO, cfg.median_kernel)
     frames = pick_frames(tr.tracked, cfg.sdf_frames)
+    s.repin(_passes_frames(tr.tracked, cfg))  # read by the passes below, several times each
     if progress is not None:
         progress(0.6, f"visible SDF from {len(frames)} frames")
     sv, strip = s, None  # the session as this stage reads it: masks trimmed by colour when they are off the object
@@ -90,3 +93,10 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
         mask_strip_fraction=strip if strip is None or np.isfinite(strip) else None,
         masks_trimmed=sv is not s,
     )
+
+
+def _passes_frames(tracked: np.ndarray, cfg: TrackingConfig) -> np.ndarray:
+    """The frames the visible-geometry passes of ``run`` read, given which frames are tracked (N,) bool: the SDF's,
+    the evidence band's and the visible set's (``pick_frames``)."""
+    band = cfg.sdf_band_frames if cfg.sdf_band_frames else cfg.sdf_frames
+    return np.unique(np.concatenate([pick_frames(tracked, n) for n in (cfg.sdf_frames, band, cfg.visible_frames)]))

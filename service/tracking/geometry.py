@@ -364,9 +364,13 @@ def _pt_g(p: np.ndarray, e: np.ndarray, w: np.ndarray | None = None) -> np.ndarr
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Row-wise cross product of (N,3) arrays (cheaper than np.cross for small N)."""
-    return np.stack([a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1], a[:, 2] * b[:, 0] - a[:, 0] * b[:, 2],
-                     a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]], 1)
+    """Row-wise cross product of (N,3) arrays (cheaper than np.cross for small N; written into one array, the
+    same products and differences as stacking the three columns)."""
+    out = np.empty((len(a), 3), np.result_type(a, b))
+    np.subtract(a[:, 1] * b[:, 2], a[:, 2] * b[:, 1], out=out[:, 0])
+    np.subtract(a[:, 2] * b[:, 0], a[:, 0] * b[:, 2], out=out[:, 1])
+    np.subtract(a[:, 0] * b[:, 1], a[:, 1] * b[:, 0], out=out[:, 2])
+    return out
 
 
 def _exp_se3(delta: np.ndarray) -> np.ndarray:

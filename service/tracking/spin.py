@@ -199,11 +199,12 @@ def _cyl(P_O: np.ndarray, a: np.ndarray, c: np.ndarray, e1: np.ndarray, e2: np.n
 
 
 def spin_votes(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray, a: np.ndarray, c: np.ndarray,
-               tol: float) -> np.ndarray:
+               tol: float, basis: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Spin votes θ (K,) (rad, wrapped to (−π, π]) of matched points p (in frame i, W) and q (in anchor j, W):
     θ with S(θ) q_O = p_O, kept where radius and height about the axis agree within ``tol`` (m) and the radius is
-    at least ``tol`` (points on the axis carry no azimuth)."""
-    e1, e2 = _basis(a)
+    at least ``tol`` (points on the axis carry no azimuth). ``basis``: ``_basis(a)`` when the caller has it (it
+    costs more than the votes)."""
+    e1, e2 = _basis(a) if basis is None else basis
     Xi, Xj = X_inv(X_i), X_inv(X_j)
     pO = pW @ Xi[:3, :3].T + Xi[:3, 3]
     qO = qW @ Xj[:3, :3].T + Xj[:3, 3]
@@ -245,6 +246,7 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     if not is_rev:
         return SpinResult(False, lam, a, c, theta, votes, False)
     Xc = X_WO.copy()  # corrected poses of the anchors
+    basis = _basis(a)  # once, for every spin_votes
     anchors = [0]
     half = np.radians(inlier_deg)
     fixed = np.zeros(n, bool)  # frames of fast stretches (spin_mixed)
@@ -272,7 +274,7 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
             m = match(des, dq)
             if len(m) == 0:
                 continue
-            th = spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], Xc[j], a, c, tol)
+            th = spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], Xc[j], a, c, tol, basis)
             th = theta[prev] + np.angle(np.exp(1j * (th - theta[prev])))
             th = th[np.abs(th - theta[prev]) <= win]
             th_all.append(th)
@@ -339,6 +341,7 @@ def spin_links(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
 
     n = len(X_WO)
     half = np.radians(inlier_deg)
+    basis = _basis(a)  # once, for every spin_votes
     out = []
     for i in range(1, n):
         kp, des = feats[i]
@@ -358,7 +361,7 @@ def spin_links(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
             m = match(des, dq)
             if len(m) < min_votes:
                 continue
-            t, cnt = vote_mode(spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], X_WO[j], a, c, tol), half)
+            t, cnt = vote_mode(spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], X_WO[j], a, c, tol, basis), half)
             if cnt < min_votes:
                 continue
             if short:
