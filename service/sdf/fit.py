@@ -75,38 +75,6 @@ def hull_sdf(points_O: np.ndarray, query_O: np.ndarray, max_vertices: int = 400)
     return out.numpy().astype(np.float64)
 
 
-class AdamStep:
-    """``torch.optim.Adam([p], lr, betas, eps)`` (no weight decay, amsgrad, maximize) for one CPU tensor: the
-    optimiser's single-tensor step (``torch.optim.adam._single_tensor_adam``, torch 2.13) written out with the same
-    kernels and the same scalars, hence the same values bit for bit (tests/sdf/test_adam.py). torch.optim's first
-    use in a process imports torch._dynamo, about 2 s of CPU, for this one small step.
-
-        m ← lerp(m, g, 1 − β₁);  v ← β₂ v + (1 − β₂) g²;  p ← p − lr / (1 − β₁ᵗ) · m / (√v / √(1 − β₂ᵗ) + ε)
-    """
-
-    def __init__(self, param: torch.Tensor, betas: tuple[float, float] = (0.9, 0.999), eps: float = 1e-8):
-        self.param, (self.beta1, self.beta2), self.eps = param, betas, eps
-        dtype = torch.float64 if torch.get_default_dtype() == torch.float64 else torch.float32  # as torch.optim
-        self.step_t = torch.zeros((), dtype=dtype)
-        self.exp_avg = torch.zeros_like(param, memory_format=torch.preserve_format)
-        self.exp_avg_sq = torch.zeros_like(param, memory_format=torch.preserve_format)
-
-    @torch.no_grad()
-    def step(self, lr: float) -> None:
-        """One step with learning rate ``lr`` from ``param.grad``."""
-        grad = self.param.grad
-        self.step_t += 1
-        self.exp_avg.lerp_(grad, 1 - self.beta1)
-        self.exp_avg_sq.mul_(self.beta2).addcmul_(grad, grad, value=1 - self.beta2)
-        step = self.step_t.item()
-        bias_correction1 = 1 - self.beta1**step
-        bias_correction2 = 1 - self.beta2**step
-        step_size = lr / bias_correction1
-        bias_correction2_sqrt = bias_correction2**0.5
-        denom = (self.exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(self.eps)
-        self.param.addcdiv_(self.exp_avg, denom, value=-step_size)
-
-
 def _ray_box(o: np.ndarray, d: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Entry/exit parameters (R,) of rays o + z·d through the box [lo, hi] (z ≥ 0)."""
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -205,12 +173,14 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None, ba
     obj_t = torch.from_numpy(obj)
     lo_t, hi_t = torch.tensor(lo, dtype=torch.float32), torch.tensor(hi, dtype=torch.float32)
 
-    opt = AdamStep(values, betas=(0.9, 0.999), eps=1e-15)  # torch.optim.Adam's step, without importing torch._dynamo
+    opt = torch.optim.Adam([values], lr=cfg.lr * voxel, betas=(0.9, 0.999), eps=1e-15)
     n_near, n_far = cfg.samples_near, cfg.samples_far
     ns = n_near + n_far
     B = min(cfg.rays_per_step, len(idx_all))
     for step in range(cfg.steps):
         lr = cfg.lr * voxel * cfg.lr_decay ** (step / max(cfg.steps, 1))
+        for g in opt.param_groups:
+            g["lr"] = lr
         r = torch.from_numpy(rng.choice(idx_all, B, replace=False))
         o, d, dd, z0, z1, w = O[r], D[r], dep[r], zin_t[r], far_t[r], w_t[r]
         isobj, isunc = obj_t[r], uncertain_t[r]
@@ -244,9 +214,9 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None, ba
             loss = loss + cfg.w_smooth * (lap ** 2).mean()
         for extra in extra_losses:
             loss = loss + extra(query_fn, step)
-        values.grad = None
+        opt.zero_grad(set_to_none=True)
         loss.backward()
-        opt.step(lr)
+        opt.step()
         if progress is not None and (step % 20 == 0 or step == cfg.steps - 1):
             progress((step + 1) / cfg.steps, f"sdf step {step + 1}/{cfg.steps} loss {float(loss.detach()):.4g}")
 
