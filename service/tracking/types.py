@@ -316,6 +316,11 @@ class TrackingConfig:
     spin_roll_rate_deg: float = 1.0
     spin_roll_agree: float = 0.3
     spin_roll_tol: float = 0.2  # a texture within this fraction of the roll is kept (the roll's own error)
+    # support closure (visible.support_feet): the SDF's initial hull also takes the foot of every observed surface
+    # point on the table plane at frame 0 (the object rests on the table, so the never-seen space below what was
+    # seen is object unless a keyframe saw it empty, which the carving then removes); needs below_table_outside.
+    # Off: the hidden lower part and the back are closed by the hull of the seen points 1-2 cm above the table
+    sdf_support_hull: bool = False
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -396,6 +401,8 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_roll_agree must be in [0, 1], not {self.spin_roll_agree!r}")
         if not 0 <= self.spin_roll_tol < 1:
             raise ValueError(f"TrackingConfig.spin_roll_tol must be in [0, 1), not {self.spin_roll_tol!r}")
+        if self.sdf_support_hull and not self.below_table_outside:
+            raise ValueError("TrackingConfig.sdf_support_hull needs below_table_outside (the table plane at frame 0)")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages``, ``color_stages`` or ``sil_stages`` (comma-separated; ValueError for
