@@ -8,7 +8,8 @@ Entry point ``run(TrackingInputs, TrackingConfig, *, progress=None) -> TrackingO
 2. velocities (``service.tracking.velocity``): median-filtered backward differences (method-notes §1.3);
 3. visible SDF (``service.sdf.fit_sdf``) from the depth rays of tracked frames (without the readings other frames
    saw through, ``visible.drop_contradicted``), started from the hull of the seen points carved by the keyframes'
-   free space (``visible.carved_init``), marching cubes -> visible mesh;
+   free space (``visible.carved_init``; with ``sdf_support_hull`` the hull also takes the seen points' feet on the
+   table), marching cubes -> visible mesh;
 4. visible set V (``service.tracking.visible``): convex-hull points of the mesh that pass a visibility check.
 See docs/tracking.md.
 """
@@ -67,7 +68,10 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
         rays = drop_contradicted(sv, tr.X_WO, ev_frames, rays, cfg)
     if cfg.sdf_band_evidence:
         band = band_depth(sv, tr.X_WO, ev_frames, rays, cfg)
-    init = carved_init(rays, cfg.sdf, tr.carver, cfg.sdf_carve_value) if cfg.sdf_carve_init and tr.carver is not None else None
+    carver = tr.carver if cfg.sdf_carve_init else None
+    support = halfspace if cfg.sdf_support_hull else None  # the hull closed down to the table (then carved)
+    init = carved_init(rays, cfg.sdf, carver, cfg.sdf_carve_value, support_O=support) \
+        if carver is not None or support is not None else None
     grid = fit_sdf(rays, cfg.sdf, init=init, halfspace_O=halfspace, progress=rep(0.6, 0.95), band_back=band)
     mesh = extract_mesh(grid)
     if mesh.is_empty:

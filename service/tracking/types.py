@@ -334,6 +334,11 @@ class TrackingConfig:
     resettle_max_shift: float = 0.03
     resettle_max_yaw_deg: float = 0.0
     resettle_seen: float = 0.02
+    # support closure (visible.support_feet): the SDF's initial hull also takes the foot of every observed surface
+    # point on the table plane at frame 0 (the object rests on the table, so the never-seen space below what was
+    # seen is object unless a keyframe saw it empty, which the carving then removes); needs below_table_outside.
+    # Off: the hidden lower part and the back are closed by the hull of the seen points 1-2 cm above the table
+    sdf_support_hull: bool = False
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -420,6 +425,8 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not self.resettle_delay >= 1:
             raise ValueError(f"TrackingConfig.resettle_delay must be >= 1, not {self.resettle_delay!r}")
+        if self.sdf_support_hull and not self.below_table_outside:
+            raise ValueError("TrackingConfig.sdf_support_hull needs below_table_outside (the table plane at frame 0)")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages``, ``color_stages`` or ``sil_stages`` (comma-separated; ValueError for

@@ -118,19 +118,39 @@ def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng
     return RaySet.concatenate(parts)
 
 
-def carved_init(rays: RaySet, sdf_cfg, carver, value: float) -> "SdfGrid":
+def support_feet(P_O: np.ndarray, halfspace_O: np.ndarray) -> np.ndarray:
+    """(K,3) feet of points (K,3) on the table plane ``halfspace_O`` = (n, b) of ``below_table_halfspace`` (n·p + b
+    = 0 on the table, n pointing down): p − (n·p + b) n. Points below the plane are their own feet."""
+    hs = np.asarray(halfspace_O, float).reshape(4)
+    n = hs[:3] / max(np.linalg.norm(hs[:3]), 1e-12)
+    b = hs[3] / max(np.linalg.norm(hs[:3]), 1e-12)
+    P = np.asarray(P_O, float)
+    h = np.minimum(P @ n + b, 0.0)
+    return P - h[:, None] * n[None, :]
+
+
+def carved_init(rays: RaySet, sdf_cfg, carver, value: float, support_O: np.ndarray | None = None) -> "SdfGrid":
     """Initial SDF (the grid ``fit_sdf`` will use for ``rays`` and ``sdf_cfg``): the convex hull of the observed
-    surface points, S = max over hull facets, with the voxels ``carver`` (``FreeSpace``) sees through set to at
-    least ``value`` (m, > 0: outside)."""
+    surface points, S = max over hull facets, with the voxels ``carver`` (``FreeSpace``; None: no carving) sees
+    through set to at least ``value`` (m, > 0: outside).
+
+    ``support_O`` (4,), optional: the table plane (n, b) at frame 0 (``below_table_halfspace``). The hull then also
+    takes the foot of every observed point on it (``support_feet``; ``sdf_support_hull``): the object rests on the
+    table, and the space between what was seen and the table that no keyframe saw empty — the part hidden by an
+    occluder, the space under a never-seen back face — starts as object instead of air; the carving removes what
+    a keyframe saw through (the table under an overhang, the air beside a slanted face)."""
     from service.sdf import SdfGrid
     from service.sdf.fit import default_bounds, hull_sdf, make_grid_geometry
     from service.sdf.grid import grid_points
 
     origin, voxel, shape = make_grid_geometry(default_bounds(rays, sdf_cfg.pad), sdf_cfg.resolution)
     P = grid_points(origin, voxel, shape).reshape(-1, 3)
-    S = hull_sdf(rays.surface_points_O, P)
+    surf = rays.surface_points_O
+    if support_O is not None:
+        surf = np.concatenate([surf, support_feet(surf, support_O)])
+    S = hull_sdf(surf, P)
     inside = S < value
-    if inside.any():
+    if carver is not None and inside.any():
         st = carver.seen_through(P[inside])
         idx = np.nonzero(inside)[0][st]
         S[idx] = value
