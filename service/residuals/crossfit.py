@@ -353,8 +353,8 @@ def final_refit(inputs: ResidualInputs, cfg: ResidualConfig, input_model: Object
     ``max_train_segments``; here every unit is in the pool and the cap is K × ``max_train_segments`` (the blocks
     the K fold fits used together), K × ``max_nuisance_segments`` for the corrections.
 
-    The routine of one split: the corrections (if any) fitted from "no change" on all units (``_fit_nuisance``) and
-    the contact modes re-classified with them; then each accepted effect, in the order of acceptance, fitted by
+    The routine of one split: the corrections (if any) fitted from "no change" on all units (``_fit_nuisance``; here
+    with the accepted effects in place at their fold means) and the contact modes re-classified with them; then each accepted effect, in the order of acceptance, fitted by
     ``_fit`` (guess: its fold mean) on its own frames of the blocks where it acts, on top of the other accepted
     effects (already refitted ones at their new value, the others at their fold mean: one Gauss–Seidel sweep, so
     the values are fitted jointly) and refitted jointly with the corrections (``_refine_joint``) when there are
@@ -374,7 +374,10 @@ def final_refit(inputs: ResidualInputs, cfg: ResidualConfig, input_model: Object
         cap = K * cfg.max_nuisance_segments
         if len(tr_n) > cap:
             tr_n = [tr_n[i] for i in sorted(rng.choice(len(tr_n), cap, replace=False))]
-        fix, e0, e1 = _fit_nuisance(nuis_names, input_model, dict(input_effects), ev, tr_n, cfg)
+        # fitted with the accepted effects in place (at their fold means), so that the corrections do not soak up
+        # the effects first (the single split fits them before any effect is known)
+        m_eff, s_eff = apply_effects(input_model, chosen)
+        fix, e0, e1 = _fit_nuisance(nuis_names, m_eff, {**input_effects, **s_eff}, ev, tr_n, cfg)
         nuis_fix = dict(fix)
         rep["nuisance"] = {"train_error_before": e0, "train_error_after": e1, "train_blocks": len(tr_n)}
         if fix:
