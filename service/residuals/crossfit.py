@@ -397,6 +397,10 @@ def final_refit(inputs: ResidualInputs, cfg: ResidualConfig, input_model: Object
         if len(tr) > K * cfg.max_train_segments:
             sub = np.random.default_rng(cfg.seed + 4243 + i).choice(len(tr), K * cfg.max_train_segments, replace=False)
             tr = [tr[j] for j in sorted(sub)]
+        if len(tr) < 2:  # cannot happen with the blocks the folds had (all units are in the pool); kept safe
+            refit[name] = tuple(theta_mean)
+            rep["notes"][name] = f"fold mean kept: {len(tr)} training block(s) on all units"
+            continue
         theta, e_train = _fit(eff, theta_mean, model, base_effects, others, ev, tr, cfg)
         if nuis_fix:
             nuis_fix, theta = _refine_joint(nuis_fix, eff, theta, others, input_model, dict(input_effects), ev, tr_n, cfg)
