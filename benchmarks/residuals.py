@@ -351,7 +351,16 @@ def strike(args) -> None:
                     fs = f"{fv:.4g}"
                 ratio = sa / sb if sb else float("nan")
                 ok = ok and rel <= 0.25 and ratio <= 0.6
-                line += (f"; true {truth}, fitted {fs} (error {rel:.0%}); its frames {c.heldout_error_before * 1e3:.2f} -> "
+                fm_txt = ""
+                fm = out.by_mode.get("refit", {}).get("effects", {}).get(name, {}).get("fold_mean")
+                if fm:  # cross-fitting: the reported value is the refit on all units; the fold mean for comparison
+                    fmv = np.array(list(fm.values()))
+                    if isinstance(truth, tuple):
+                        fm_rel = float(np.linalg.norm(fmv[:k] - tv[:k]) / np.linalg.norm(tv))
+                    else:
+                        fm_rel = abs(float(fmv[0]) - truth) / abs(truth - null)
+                    fm_txt = " [fold mean " + ", ".join(f"{v:.4g}" for v in fmv) + f" (error {fm_rel:.0%})]"
+                line += (f"; true {truth}, fitted {fs} (error {rel:.0%}){fm_txt}; its frames {c.heldout_error_before * 1e3:.2f} -> "
                          f"{c.heldout_error_after * 1e3:.2f} mm; decision: {c.reason.split(';')[0]}")
             if args.learned_model:
                 line += (f"; corrected model {out.by_mode['error_corrected']['scalar_m'] * 1e3:.2f} mm, corrections "
