@@ -31,9 +31,12 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    frame i becomes a keyframe with all its points (the settled object's model of its own, joined to the pre-fall
    one by the pose); the loop continues from it and the fall's frames are registered backwards from it after the
    loop (``tracker._settle_backward``).
-What is left: the join is 1–3° / 5–18 mm off on the development topples, mostly along the tipping direction (the
-lab's cartons land 6–15 mm beyond the pure turn about the edge) where no face is seen in both views; later frames
-keep that offset (the bundle adjustment finds too little shared surface to remove it).
+4. After the loop (``tracker._resettle_refine``, ``resettle_refine_frames``): the join is moved forward along f
+   until the object's base (``base_points``: the table plane under the rest pose, within the model's footprint)
+   no longer lies where the settled frames see the table or background (``base_shift``); the lab's cartons land
+   6–15 mm beyond the pure turn about the edge, and after the topple the base faces −f, behind the object.
+What is left: the join is 1–3° off and a few millimetres sideways; the base test is a lower bound of the slide
+along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
 manipulation"); plane-based registration (Pathak et al. 2010, "Fast registration based on noisy planes").
 """
