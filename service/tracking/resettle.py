@@ -31,9 +31,12 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    frame i becomes a keyframe with all its points (the settled object's model of its own, joined to the pre-fall
    one by the pose); the loop continues from it and the fall's frames are registered backwards from it after the
    loop (``tracker._settle_backward``).
-What is left: the join is 1–3° / 5–18 mm off on the development topples, mostly along the tipping direction (the
-lab's cartons land 6–15 mm beyond the pure turn about the edge) where no face is seen in both views; later frames
-keep that offset (the bundle adjustment finds too little shared surface to remove it).
+4. After the loop (``tracker._resettle_refine``, ``resettle_refine_frames``): the join is moved forward along f
+   until the object's base (``base_points``: the table plane under the rest pose, within the model's footprint)
+   no longer lies where the settled frames see the table or background (``base_shift``); the lab's cartons land
+   6–15 mm beyond the pure turn about the edge, and after the topple the base faces −f, behind the object.
+What is left: the join is 1–3° off and a few millimetres sideways; the base test is a lower bound of the slide
+along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
 manipulation"); plane-based registration (Pathak et al. 2010, "Fast registration based on noisy planes").
 """
@@ -236,3 +239,38 @@ def face_offsets(X: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, P_W: np.ndarra
         if np.linalg.norm(sol) <= max_shift:
             X2[:2, 3] += sol
     return X2
+
+
+def base_points(Q_O: np.ndarray, X_0: np.ndarray, table_height: float, step: float = 0.003,
+                inset: float = 0.005) -> np.ndarray:
+    """(B,3) points of the object's base in O: the table plane under the rest pose X_0 (4,4) within the convex hull
+    of the model Q_O (M,3) seen from above at rest, ``inset`` inside its boundary (a prism's base is its
+    cross-section; the pre-fall views see the sides, never the base), on a ``step`` grid."""
+    from scipy.spatial import ConvexHull
+
+    P = Q_O @ X_0[:3, :3].T + X_0[:3, 3]
+    xy = P[:, :2]
+    lo, hi = xy.min(0), xy.max(0)
+    gx, gy = np.meshgrid(np.arange(lo[0], hi[0], step), np.arange(lo[1], hi[1], step))
+    G = np.stack([gx.ravel(), gy.ravel()], 1)
+    try:
+        eq = ConvexHull(xy).equations  # rows (n_x, n_y, c): n·x + c <= 0 inside, n unit
+    except Exception:  # degenerate footprint
+        return np.zeros((0, 3))
+    inside = np.all(G @ eq[:, :2].T + eq[:, 2] <= -inset, axis=1)
+    B_W = np.column_stack([G[inside], np.full(inside.sum(), table_height)])
+    X_OW = np.linalg.inv(X_0)
+    return B_W @ X_OW[:3, :3].T + X_OW[:3, 3]
+
+
+def base_shift(B_W: np.ndarray, seen: "callable", f: np.ndarray, max_shift: float, step: float = 0.001,
+               tol: float = 0.01) -> float:
+    """The least shift s in [0, ``max_shift``] (``step``) along the horizontal unit direction f (3,) at which at most
+    ``tol`` of the base points B_W (B,3) (``base_points`` placed at the join) lie where the settled frames see the
+    table or background (``seen(P) -> (len(P),) bool``); 0 when none does. After the topple the base faces −f, so
+    a join that stops short of the landing (the lab's cartons slide beyond the pure turn about the edge) puts it
+    in the empty space the frames see behind the object; the least consistent shift is a lower bound of the slide."""
+    for s in np.arange(0.0, max_shift + 0.5 * step, step):
+        if float(np.mean(seen(B_W + s * f))) <= tol:
+            return float(s)
+    return 0.0

@@ -26,7 +26,8 @@ Fast-motion gaps (``settle``, off): a still run after a fast fall is re-localise
 fall, the fall's keyframes dropped and its frames registered backwards (``service.tracking.settle``).
 Topple landings (``resettle``, on): the pre-fall model tipped about its leading bottom edge onto its leading face
 replaces a track far from it a few frames after the landing, the settled frame a keyframe with all its points
-(``service.tracking.resettle``).
+(``service.tracking.resettle``); after the loop the join moves along the tipping direction until the object's base
+is no longer where the settled frames see the table (``resettle_refine_frames``).
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
 normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
 or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
@@ -532,6 +533,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         if i % 10 == 0:
             _report(progress, 0.6 * i / N, f"tracking frame {i}/{N}, {len(keyframes)} keyframes")
 
+    if cfg.resettle_refine_frames > 0 and any(ld.adopted for ld in landings):  # the join moved along the tip
+        model = _resettle_refine(session, obs, X, tracked, keyframes, carver, landings, cfg) or model
     if any(ld.adopted for ld in landings):  # the fall's frames registered backwards from the settled pose
         _settle_backward(session, obs, X, tracked, frac, rmse, model, landings, cfg, icp_kw)
     if cfg.ba_iters > 0 and len(keyframes) > 2:
@@ -813,6 +816,61 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     model = _model_from(keyframes, cfg.model_voxel)
     X[i] = Xj
     return icp_result(X_OW, o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist), model
+
+
+def _resettle_refine(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, keyframes: list[Keyframe],
+                     carver: "FreeSpace | None", landings: list, cfg: TrackingConfig) -> ObjectModel | None:
+    """Every adopted topple join (``_resettle_check``) moved forward along its tipping direction f until the
+    object's base (``resettle.base_points``: the table plane under the rest pose of frame 0 within the pre-fall
+    model's footprint, 5 mm inside it) no longer lies where the settled segment's frames see the table or
+    background (``resettle.base_shift``; depth margin 3 mm, 1 px: the base stands vertical behind the landed
+    object, where the table is only millimetres behind it). The settled segment: the first
+    ``resettle_refine_frames`` tracked frames from the settled frame i on, carried to frame i by their tracked
+    poses (the segment is consistent within itself). The shift (at most ``resettle_max_shift``) moves the poses
+    from frame i up to the next adopted fall and the keyframes among them. Returns the rebuilt model when a join
+    moved, else None."""
+    from service.tracking.resettle import base_points, base_shift
+
+    adopted = [ld for ld in landings if ld.adopted]
+    moved = False
+    for k, ld in enumerate(adopted):
+        i = ld.i
+        end = adopted[k + 1].g0 if k + 1 < len(adopted) else len(X)
+        seg = [j for j in range(i, end) if tracked[j] and len(obs[j].P_W) >= cfg.min_points]
+        seg = seg[: cfg.resettle_refine_frames]
+        pre = [kf for kf in keyframes if kf.index < ld.g0]
+        if len(seg) < 3 or not pre:
+            continue
+        w = so3_log(X[i][:3, :3] @ X[ld.g0][:3, :3].T)  # the fall's turn: its horizontal axis h gives f = h × z
+        h = np.array([w[0], w[1], 0.0])
+        if np.linalg.norm(h) < 1e-6:
+            continue
+        f = np.cross(h / np.linalg.norm(h), [0.0, 0.0, 1.0])
+        B = base_points(_model_from(pre, cfg.model_voxel).Q, X[0], session.table_height)
+        if len(B) < 30:
+            continue
+        B_W = B @ X[i][:3, :3].T + X[i][:3, 3]
+        view = FreeSpace(session.K, session.X_WC, 0.003, 1)
+        X_iinv = X_inv(X[i])
+        for j in seg:
+            view.add(j, session.depth(j), X[j] @ X_iinv)  # the join's W carried to frame j's W
+        s = base_shift(B_W, view.seen_through, f, cfg.resettle_max_shift)
+        if s <= 0.0:
+            continue
+        T = np.eye(4)
+        T[:3, 3] = s * f
+        for j in range(i, end):
+            X[j] = T @ X[j]
+        for kf in keyframes:
+            if i <= kf.index < end:
+                kf.X_WO = T @ kf.X_WO
+                X_OW = X_inv(kf.X_WO)
+                kf.P_O = kf.P_W @ X_OW[:3, :3].T + X_OW[:3, 3]
+                kf.kp_O = kf.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3]
+                if carver is not None:
+                    carver.update_pose(kf.index, kf.X_WO)
+        moved = True
+    return _model_from(keyframes, cfg.model_voxel) if moved else None
 
 
 def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
