@@ -11,7 +11,10 @@ its unit.
 
 Greedy rounds: each fold keeps its own current model (its corrected base + the accepted effects with its own
 θ_f); a candidate of round r is fitted on top of that fold's model. Rules 4 (resolution) and 7 (direction) are
-checked on the fold mean θ̄ = mean_f θ_f, rule 5 (bound) on every θ_f (one fold pinned to a bound is compensation). Cross-validation decides;
+checked on the fold mean θ̄ = mean_f θ_f, rule 5 (bound) on every θ_f (one fold pinned to a bound is compensation);
+rule 8 (``fold_agreement``, K >= 2 only): every θ_f departs from the null value the same way (scalars: same sign
+of θ_f − θ_null; vectors: every pairwise angle between the departures, scaled by the resolution, < 90°), or the
+folds are fitting noise differently rather than seeing one effect. Cross-validation decides;
 the parameter reported for an accepted effect (``ResidualOutputs.effects``, the candidate's ``params``, the output
 model and URDF) is one more fit on all units (``final_refit``: the routine of one split, corrections included, the
 accepted effects refitted jointly, training cap K × ``max_train_segments``), with θ̄ and the fold values reported
