@@ -110,7 +110,7 @@ def fold_agreement(eff, thetas, model: ObjectModel) -> tuple[bool, str]:
         s = np.sign(d[:, 0])
         agree = bool(np.all(s == s[0]) and s[0] != 0)
         txt = "fold departures from no effect " + ", ".join(f"{v * res[0]:+.3g}" for v in d[:, 0]) + (
-            " (same sign)" if agree else " (not all the same sign)")
+            " (same sign)" if agree else " (a fold on no effect)" if np.any(s == 0) else " (not all the same sign)")
         return agree, txt
     n = np.linalg.norm(d, axis=1)
     ang = []
