@@ -32,6 +32,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import re
 import sys
 import time
 from pathlib import Path
@@ -261,6 +262,20 @@ STRIKE_CASES = {
 STRIKE_NULL = {"friction": "mu", "friction_robot": 1.0, "friction_robot_low": 1.0}
 
 
+def _print_fold_agreement(out) -> None:
+    """Cross-fitting: every judged candidate's fold values and rule 8 (fold agreement, docs/residuals.md §4)."""
+    for c in out.candidates:
+        m = re.search(r"fold values ((?:\([^)]*\)(?:; )?)+)", c.reason)
+        if m is None:
+            continue
+        fv = "fold values " + m.group(1).rstrip("; ")
+        parts = [p.strip() for p in c.reason.split(";")]
+        ag = next((p.removeprefix("fold agreement: ") for p in parts if "fold departures" in p or "fold agreement" in p
+                   or "largest angle" in p), "not reached (failed an earlier rule)")
+        state = "accepted" if c.accepted else parts[0].split(":")[0]
+        print(f"    {c.effect:16s} {state}: {fv}; agreement: {ag}", flush=True)
+
+
 def _true_split(ls, model, name, truth, cfg) -> str:
     """Block errors of the declared model and of the model with the hidden effect at its *true* value, on the
     effect's frames of every block (training and held-out) where it acts: how much the data can show the effect at
@@ -372,6 +387,8 @@ def strike(args) -> None:
             n += 1
             n_ok += ok
             print(line, flush=True)
+            if args.folds >= 2:
+                _print_fold_agreement(out)
     if args.true_split:
         return
     print(f"strike cases passing the test criteria (right effect alone, within 25 %, free-sliding error <= 0.6x; "

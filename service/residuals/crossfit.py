@@ -11,7 +11,10 @@ its unit.
 
 Greedy rounds: each fold keeps its own current model (its corrected base + the accepted effects with its own
 θ_f); a candidate of round r is fitted on top of that fold's model. Rules 4 (resolution) and 7 (direction) are
-checked on the fold mean θ̄ = mean_f θ_f, rule 5 (bound) on every θ_f (one fold pinned to a bound is compensation). Cross-validation decides;
+checked on the fold mean θ̄ = mean_f θ_f, rule 5 (bound) on every θ_f (one fold pinned to a bound is compensation);
+rule 8 (``fold_agreement``, K >= 2 only): every θ_f departs from the null value the same way (scalars: same sign
+of θ_f − θ_null; vectors: every pairwise angle between the departures, scaled by the resolution, < 90°), or the
+folds are fitting noise differently rather than seeing one effect. Cross-validation decides;
 the parameter reported for an accepted effect (``ResidualOutputs.effects``, the candidate's ``params``, the output
 model and URDF) is one more fit on all units (``final_refit``: the routine of one split, corrections included, the
 accepted effects refitted jointly, training cap K × ``max_train_segments``), with θ̄ and the fold values reported
@@ -34,7 +37,7 @@ import numpy as np
 
 from service.errors import InvalidInput
 from service.model import ObjectModel
-from service.residuals.effects import REGISTRY, apply_effects, at_bound, fold_into_model, is_negligible
+from service.residuals.effects import REGISTRY, apply_effects, at_bound, fold_into_model, is_negligible, null_params
 from service.residuals.modes import classify
 from service.residuals.types import EffectCandidate, ResidualConfig, ResidualInputs, ResidualOutputs
 
@@ -91,6 +94,45 @@ class _Fold:
 
 def _flat(names_theta: dict) -> dict[str, float]:
     return {k: float(v) for n, th in names_theta.items() for k, v in zip(REGISTRY[n].params, th)}
+
+
+def fold_agreement(eff, thetas, model: ObjectModel) -> tuple[bool, str]:
+    """Rule 8 (§4): do the K fold fits see the same effect? Departures d_f = (θ_f − θ_null) / resolution
+    (per parameter, so the test does not depend on the parameters' units), θ_null from ``null_params``.
+    One parameter: every d_f has the same sign (none exactly 0). Several (table tilt, CoM offset): every pairwise
+    angle between the departures is < 90°, i.e. every d_f · d_g > 0 (none of zero norm): the folds' effects point
+    into the same half-space of each other. ``thetas`` (K, P). Returns (agree, text for the reason)."""
+    th = np.atleast_2d(np.asarray(thetas, float))
+    null = np.asarray(null_params(eff, model), float)
+    res = np.asarray(eff.resolution or (1.0,) * len(null), float)
+    d = (th - null) / np.where(res > 0, res, 1.0)
+    if d.shape[1] == 1:
+        s = np.sign(d[:, 0])
+        agree = bool(np.all(s == s[0]) and s[0] != 0)
+        txt = "fold departures from no effect " + ", ".join(f"{v * res[0]:+.3g}" for v in d[:, 0]) + (
+            " (same sign)" if agree else " (a fold on no effect)" if np.any(s == 0) else " (not all the same sign)")
+        return agree, txt
+    n = np.linalg.norm(d, axis=1)
+    ang = []
+    for a in range(len(d)):
+        for b in range(a + 1, len(d)):
+            c = float(d[a] @ d[b] / max(n[a] * n[b], 1e-300))
+            ang.append(float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))) if n[a] > 0 and n[b] > 0 else 180.0)
+    worst = max(ang)
+    agree = worst < 90.0
+    txt = f"largest angle between fold departures {worst:.0f}°" + (" (< 90°)" if agree else " (>= 90°)")
+    return agree, txt
+
+
+def agreement_rule(ok: bool, why: str, eff, thetas, model: ObjectModel) -> tuple[bool, str]:
+    """Rule 8 after rules 1–7 (K >= 2 only): an effect passing them is rejected when its fold values disagree
+    (``fold_agreement``); the test's figures are appended to the reason either way."""
+    if len(np.atleast_2d(thetas)) < 2:
+        return ok, why
+    agree, txt = fold_agreement(eff, thetas, model)
+    if ok and not agree:
+        return False, f"rejected: the folds disagree on the effect ({txt}); " + why.removeprefix("passes; ")
+    return ok, f"{why}; fold agreement: {txt}"
 
 
 def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, names: list[str], nuis_names: list[str],
@@ -233,6 +275,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
             ok, why = later_rules(ok, why, eff, theta_rep, folds[0].model, all_before, all_after,
                                   [fd.held[i] for f, fd in enumerate(folds) for i in ho_idx[f]], rel_before, rel_after,
                                   f" in fold(s) {bound_f}" if bound_f else None)
+            ok, why = agreement_rule(ok, why, eff, thetas, folds[0].model)
             n_tr = sum(len(t) for t in tr_e)
             cand = EffectCandidate(
                 effect=name,

@@ -147,7 +147,8 @@ class ResidualConfig:
     robot_smooth_s: float = 0.04  # Savitzky-Golay window on the measured sphere path before the rollouts, s (0: off)
     # K-fold cross-fitting of the held-out test (docs/residuals.md §4): 1 = one seeded split (half the units held
     # out); K >= 2 = every unit (toss, or block of one session) held out exactly once, the corrections and the
-    # candidates fitted on the complement of each fold, rules 1-7 applied to the union of the folds' held-out errors
+    # candidates fitted on the complement of each fold, rules 1-7 applied to the union of the folds' held-out errors, then
+    # rule 8: every fold's value departs from "no effect" the same way (crossfit.fold_agreement)
     folds: int = 1
 
     def __post_init__(self) -> None:
