@@ -344,8 +344,15 @@ def main() -> None:
                     help="only compare two --save folders (identical bits or the largest difference per array)")
     a = ap.parse_args()
     if a.compare:
+        for d in a.compare:
+            if not d.is_dir():
+                ap.error(f"--compare {d}: not a folder (give two folders written by --save)")
+        if not any(a.compare[0].glob("*.npz")):
+            ap.error(f"--compare {a.compare[0]}: no <session>.npz in it (give a folder written by --save)")
         compare_saved(*a.compare)
         return
+    if a.save is not None and a.save.exists() and not a.save.is_dir():
+        ap.error(f"--save {a.save}: exists and is not a folder")
     try:
         cfg = json.loads(a.cfg)
         if not isinstance(cfg, dict):
