@@ -141,7 +141,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
     ``segs`` every rollout block, ``ev`` the Evaluator."""
     from service.residuals.loop import (
         _acts_on, _carried_keys, _decide, _fit, _fit_nuisance, _refine_joint, accept_best, effect_mask, history_entry,
-        inadequacy, later_rules, not_judged, reduce_blocks,
+        inadequacy, judged_candidate, later_rules, not_judged, reduce_blocks,
     )
 
     K = cfg.folds
@@ -277,22 +277,9 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                                   f" in fold(s) {bound_f}" if bound_f else None)
             ok, why = agreement_rule(ok, why, eff, thetas, folds[0].model)
             n_tr = sum(len(t) for t in tr_e)
-            cand = EffectCandidate(
-                effect=name,
-                params={k: float(v) for k, v in zip(eff.params, theta_rep)},
-                heldout_error_before=float(rel_before.mean()),
-                heldout_error_after=float(rel_after.mean()),
-                accepted=False,
-                reason=why,
-                signature=sig,
-                initial_guess={k: float(v) for k, v in zip(eff.params, guess)},
-                train_error_before=float(np.mean([p["train_before"] for p in per])),
-                train_error_after=float(np.mean([p["e_train"] for p in per])),
-                round=rnd,
-                heldout_all_before=float(all_before.mean()),
-                heldout_all_after=float(all_after.mean()),
-                blocks={"train": n_tr, "heldout": int(len(rel_before)), "folds": K},
-            )
+            cand = judged_candidate(name, eff, theta_rep, guess, sig, why, rel_before, rel_after, all_before, all_after,
+                                    np.mean([p["train_before"] for p in per]), np.mean([p["e_train"] for p in per]),
+                                    rnd, {"train": n_tr, "heldout": int(len(rel_before)), "folds": K})
             per_fold = []
             for f, (p, fd) in enumerate(zip(per, folds)):
                 b = reduce_blocks([fd.cur_frames[i] for i in ho_idx[f]], p["ho_masks"])

@@ -596,6 +596,29 @@ def later_rules(ok: bool, why: str, eff, theta, model: ObjectModel, all_before: 
     return ok, why
 
 
+def judged_candidate(name: str, eff, theta, guess, sig, why: str, rel_before: np.ndarray, rel_after: np.ndarray,
+                     all_before: np.ndarray, all_after: np.ndarray, train_before: float, train_after: float, rnd: int,
+                     blocks: dict) -> EffectCandidate:
+    """A candidate that was fitted and judged (not yet accepted): its parameters and initial guess by name, its
+    held-out errors before/after on its own frames (``rel_*``) and on all held-out frames (``all_*``)."""
+    return EffectCandidate(
+        effect=name,
+        params={k: float(v) for k, v in zip(eff.params, theta)},
+        heldout_error_before=float(rel_before.mean()),
+        heldout_error_after=float(rel_after.mean()),
+        accepted=False,
+        reason=why,
+        signature=sig,
+        initial_guess={k: float(v) for k, v in zip(eff.params, guess)},
+        train_error_before=float(train_before),
+        train_error_after=float(train_after),
+        round=rnd,
+        heldout_all_before=float(all_before.mean()),
+        heldout_all_after=float(all_after.mean()),
+        blocks=blocks,
+    )
+
+
 def history_entry(rnd: int, cand: EffectCandidate, ok: bool, **extra) -> dict:
     """One candidate's fit of round ``rnd`` (0-based) for ``by_mode["rounds"]``."""
     return {"round": rnd + 1, "effect": cand.effect, "params": dict(cand.params), "passes": ok,
@@ -824,22 +847,8 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
                     why = why.replace("held-out error", "(refitted with the corrections) held-out error", 1)
                 ok, why = later_rules(ok, why, eff, theta, model, all_before, all_after, [held[i] for i in ho_idx],
                                       rel_before, rel_after, "" if at_bound(eff, theta) else None)
-                cand = EffectCandidate(
-                    effect=name,
-                    params={k: float(v) for k, v in zip(eff.params, theta)},
-                    heldout_error_before=float(rel_before.mean()),
-                    heldout_error_after=float(rel_after.mean()),
-                    accepted=False,
-                    reason=why,
-                    signature=sig,
-                    initial_guess={k: float(v) for k, v in zip(eff.params, guess)},
-                    train_error_before=train_before,
-                    train_error_after=e_train,
-                    round=rnd,
-                    heldout_all_before=float(all_before.mean()),
-                    heldout_all_after=float(all_after.mean()),
-                    blocks={"train": len(tr_e), "heldout": int(len(ho_idx))},
-                )
+                cand = judged_candidate(name, eff, theta, guess, sig, why, rel_before, rel_after, all_before, all_after,
+                                        train_before, e_train, rnd, {"train": len(tr_e), "heldout": int(len(ho_idx))})
                 # ranked by the fall of the error over all held-out frames: a common basis for effects that act
                 # on different frames (an effect on many frames can otherwise outrank the one that explains them)
                 round_res.append((ok, float(all_before.mean() - all_after.mean()), cand, theta, after_frames, cand_nuis))
