@@ -70,7 +70,9 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
         band = band_depth(sv, tr.X_WO, ev_frames, rays, cfg)
     carver = tr.carver if cfg.sdf_carve_init else None
     support = halfspace if cfg.sdf_support_hull else None  # the hull closed down to the table (then carved)
-    init = carved_init(rays, cfg.sdf, carver, cfg.sdf_carve_value, support_O=support) \
+    init = carved_init(rays, cfg.sdf, carver, cfg.sdf_carve_value, support_O=support,
+                       open_dilate=cfg.sdf_support_open_dilate if cfg.sdf_support_open else None,
+                       open_gate=cfg.sdf_support_open_gate) \
         if carver is not None or support is not None else None
     grid = fit_sdf(rays, cfg.sdf, init=init, halfspace_O=halfspace, progress=rep(0.6, 0.95), band_back=band)
     mesh = extract_mesh(grid)

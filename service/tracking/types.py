@@ -343,6 +343,18 @@ class TrackingConfig:
     # resettle.base_shift): the base must not lie where the first resettle_refine_frames tracked frames from the settled
     # frame on see the table or background; 0: off. 30: development 820 7.30 -> 6.46 mm, oat 830 7.81 -> 1.23 mm median
     resettle_refine_frames: int = 30
+    # the support closure does not reach under seen-empty space (visible.open_columns): the voxels it adds whose column
+    # upward meets space a keyframe saw empty before a seen surface (the voxels of the observed points dilated by
+    # sdf_support_open_dilate voxels) keep the start of the hull of the seen points (a mug's cavity behind its near
+    # wall, seen into through the mouth); only with sdf_support_hull
+    sdf_support_open: bool = True
+    sdf_support_open_dilate: int = 1
+    # ... and when more than this fraction of the voxels the closure adds are so, it is dropped altogether (1: never)
+    sdf_support_open_gate: float = 1.0
+    # V on the convex hull of the visible mesh's vertices that pass V's visibility check, not of the whole mesh: the
+    # hull of the whole mesh spans the closure of the unseen part, which leans outward over the seen band (support
+    # closure: milk carton 912 V 1.77 -> 1.27 mm, the default's 1.27)
+    visible_hull_seen: bool = False
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -433,6 +445,11 @@ class TrackingConfig:
             raise ValueError("TrackingConfig.sdf_support_hull needs below_table_outside (the table plane at frame 0)")
         if not (isinstance(self.resettle_refine_frames, int) and self.resettle_refine_frames >= 0):
             raise ValueError(f"TrackingConfig.resettle_refine_frames must be an int >= 0, not {self.resettle_refine_frames!r}")
+        if not (isinstance(self.sdf_support_open_dilate, int) and self.sdf_support_open_dilate >= 0):
+            raise ValueError(f"TrackingConfig.sdf_support_open_dilate must be an int >= 0, not "
+                             f"{self.sdf_support_open_dilate!r}")
+        if not 0 <= self.sdf_support_open_gate <= 1:
+            raise ValueError(f"TrackingConfig.sdf_support_open_gate must be in [0, 1], not {self.sdf_support_open_gate!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages``, ``color_stages`` or ``sil_stages`` (comma-separated; ValueError for
