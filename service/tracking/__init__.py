@@ -70,16 +70,18 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
         band = band_depth(sv, tr.X_WO, ev_frames, rays, cfg)
     carver = tr.carver if cfg.sdf_carve_init else None
     support = halfspace if cfg.sdf_support_hull else None  # the hull closed down to the table (then carved)
+    closure: dict = {}  # what the support closure added, whether it was kept (visible.carved_init)
     init = carved_init(rays, cfg.sdf, carver, cfg.sdf_carve_value, support_O=support,
                        open_dilate=cfg.sdf_support_open_dilate if cfg.sdf_support_open else None,
-                       open_gate=cfg.sdf_support_open_gate) \
+                       open_gate=cfg.sdf_support_open_gate, info=closure) \
         if carver is not None or support is not None else None
     grid = fit_sdf(rays, cfg.sdf, init=init, halfspace_O=halfspace, progress=rep(0.6, 0.95), band_back=band)
     mesh = extract_mesh(grid)
     if mesh.is_empty:
         raise StageFailed("tracking", "the visible SDF has no zero level set (no object surface reconstructed)")
     vis_frames = pick_frames(tr.tracked, cfg.visible_frames)
-    V = visible_points(sv, tr.X_WO, vis_frames, mesh, cfg, rng)
+    V = visible_points(sv, tr.X_WO, vis_frames, mesh, cfg, rng,
+                       hull_seen=cfg.visible_hull_seen and closure.get("closure", False))
     if halfspace is not None and len(V):
         V = V[V @ halfspace[:3] + halfspace[3] <= 1e-6]
     if progress is not None:

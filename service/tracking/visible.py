@@ -155,7 +155,7 @@ def open_columns(idx: np.ndarray, P: np.ndarray, origin: np.ndarray, voxel: floa
 
 
 def carved_init(rays: RaySet, sdf_cfg, carver, value: float, support_O: np.ndarray | None = None,
-                open_dilate: int | None = None, open_gate: float = 1.0) -> "SdfGrid":
+                open_dilate: int | None = None, open_gate: float = 1.0, info: dict | None = None) -> "SdfGrid":
     """Initial SDF (the grid ``fit_sdf`` will use for ``rays`` and ``sdf_cfg``): the convex hull of the observed
     surface points, S = max over hull facets, with the voxels ``carver`` (``FreeSpace``; None: no carving) sees
     through set to at least ``value`` (m, > 0: outside).
@@ -172,7 +172,10 @@ def carved_init(rays: RaySet, sdf_cfg, carver, value: float, support_O: np.ndarr
     unseen part of a cavity whose mouth the camera looked into (a mug's cavity behind its near wall) is not closed;
     under a seen surface (a box's top, a prism's face, a mug's rim and wall) the closure stays. When more than
     ``open_gate`` of the added voxels are so, the object has a cavity the camera looked into and the whole closure
-    is dropped (the start is the hull of the seen points, as without ``support_O``)."""
+    is dropped (the start is the hull of the seen points, as without ``support_O``).
+
+    ``info``: optional dict, receives ``added`` (voxels the closure adds to the seen hull), ``open`` (of them, under
+    seen-empty space) and ``closure`` (whether the start keeps any of the closure)."""
     from service.sdf import SdfGrid
     from service.sdf.fit import default_bounds, hull_sdf, make_grid_geometry
     from service.sdf.grid import grid_points
@@ -210,8 +213,15 @@ def carved_init(rays: RaySet, sdf_cfg, carver, value: float, support_O: np.ndarr
             up = -hs[:3] / max(np.linalg.norm(hs[:3]), 1e-12)
             rev = added[open_columns(added, P, origin, voxel, shape, carved, near.reshape(-1), up)]
             S[rev] = S0[rev]
-            if len(rev) > open_gate * len(added):  # a cavity seen into from above: no closure on this object
+            gated = len(rev) > open_gate * len(added)
+            if gated:  # a cavity seen into from above: no closure on this object
                 S = S0
+            if info is not None:
+                info.update(added=int(len(added)), open=int(len(rev)), closure=not gated and len(rev) < len(added))
+        elif info is not None:
+            info.update(added=0, open=0, closure=False)
+    elif info is not None and support_O is not None:
+        info.update(closure=True)
     return SdfGrid(origin_O=origin, voxel=voxel, values=S.reshape(shape).astype(np.float32))
 
 
@@ -241,14 +251,15 @@ def drop_contradicted(session, X_WO: np.ndarray, frames: np.ndarray, rays: RaySe
 
 
 def visible_points(session, X_WO: np.ndarray, frames: np.ndarray, mesh: Mesh, cfg,
-                   rng: np.random.Generator) -> np.ndarray:
-    """The visible set V (K,3) in O (see module docstring)."""
+                   rng: np.random.Generator, hull_seen: bool | None = None) -> np.ndarray:
+    """The visible set V (K,3) in O (see module docstring). ``hull_seen`` (None: ``cfg.visible_hull_seen``): the
+    hull of the mesh's vertices that pass the visibility check instead of the hull of the whole mesh."""
     import trimesh
 
     if mesh.is_empty:
         return np.zeros((0, 3))
     hull = mesh.to_trimesh().convex_hull
-    if cfg.visible_hull_seen:  # the hull of the mesh's vertices that pass the same check, not of the whole mesh
+    if cfg.visible_hull_seen if hull_seen is None else hull_seen:  # the hull of the mesh's vertices that pass the same check, not of the whole mesh
         vv = np.asarray(mesh.vertices, float)
         ok = _seen(session, X_WO, frames, vv, cfg.visible_depth_tol)
         if ok.sum() >= 4:
