@@ -9,7 +9,7 @@ Entry point ``run(TrackingInputs, TrackingConfig, *, progress=None) -> TrackingO
 3. visible SDF (``service.sdf.fit_sdf``) from the depth rays of tracked frames (without the readings other frames
    saw through, ``visible.drop_contradicted``), started from the hull of the seen points carved by the keyframes'
    free space (``visible.carved_init``; with ``sdf_support_hull`` the hull also takes the seen points' feet on the
-   table), marching cubes -> visible mesh;
+   table, but not under a cavity seen into from above), marching cubes -> visible mesh;
 4. visible set V (``service.tracking.visible``): convex-hull points of the mesh that pass a visibility check.
 See docs/tracking.md.
 """

@@ -10,7 +10,9 @@ surface points, which also fills whatever lies between them — the mouth and th
 beside a prism's ridge. Voxels of the hull that a keyframe saw through (``FreeSpace``: the depth reading there
 lies more than the carve margin behind the voxel) are set outside, S ← max(S, ``sdf_carve_value``), before the
 fit; the free-space term of the fit alone, an L1 push of weight 1 against the band term's 3000, leaves most of
-them filled.
+them filled. Support closure (``sdf_support_hull``): the hull also takes the seen points' feet on the frame-0 table
+plane, except in columns that reach seen-empty space before a seen surface going up (``open_columns``: a cavity
+seen into from above), and not at all when most of what it adds is so (``sdf_support_open_gate``: a mug).
 
 Other views' evidence: ``drop_contradicted`` (``sdf_drop_contradicted``) drops the object rays whose surface point
 another of the frames saw in front of its own reading (``service.sdf.contradicted_readings``: flying pixels,
@@ -19,7 +21,9 @@ frames measured (``service.sdf.evidence_band``), for ``fit_sdf(band_back=...)``.
 
 V: vertices of the convex hull of the visible mesh plus ``visible_samples`` area-uniform samples on the hull,
 kept when, in at least one checked frame, the point projects inside the object mask with observed depth
-agreeing with its own depth, |z_point − z_obs| < ``visible_depth_tol``.
+agreeing with its own depth, |z_point − z_obs| < ``visible_depth_tol``. Where the support closure shaped the start
+(``visible_hull_seen``), the hull is that of the mesh vertices passing the same check: the hull of the whole mesh
+spans the unseen closure, which lies a few millimetres outside the seen band.
 """
 
 from __future__ import annotations
