@@ -9,7 +9,7 @@ Entry point ``run(TrackingInputs, TrackingConfig, *, progress=None) -> TrackingO
 3. visible SDF (``service.sdf.fit_sdf``) from the depth rays of tracked frames (without the readings other frames
    saw through, ``visible.drop_contradicted``), started from the hull of the seen points carved by the keyframes'
    free space (``visible.carved_init``; with ``sdf_support_hull`` the hull also takes the seen points' feet on the
-   table), marching cubes -> visible mesh;
+   table, but not under a cavity seen into from above), marching cubes -> visible mesh;
 4. visible set V (``service.tracking.visible``): convex-hull points of the mesh that pass a visibility check.
 See docs/tracking.md.
 """
@@ -70,14 +70,18 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
         band = band_depth(sv, tr.X_WO, ev_frames, rays, cfg)
     carver = tr.carver if cfg.sdf_carve_init else None
     support = halfspace if cfg.sdf_support_hull else None  # the hull closed down to the table (then carved)
-    init = carved_init(rays, cfg.sdf, carver, cfg.sdf_carve_value, support_O=support) \
+    closure: dict = {}  # what the support closure added, whether it was kept (visible.carved_init)
+    init = carved_init(rays, cfg.sdf, carver, cfg.sdf_carve_value, support_O=support,
+                       open_dilate=cfg.sdf_support_open_dilate if cfg.sdf_support_open else None,
+                       open_gate=cfg.sdf_support_open_gate, info=closure) \
         if carver is not None or support is not None else None
     grid = fit_sdf(rays, cfg.sdf, init=init, halfspace_O=halfspace, progress=rep(0.6, 0.95), band_back=band)
     mesh = extract_mesh(grid)
     if mesh.is_empty:
         raise StageFailed("tracking", "the visible SDF has no zero level set (no object surface reconstructed)")
     vis_frames = pick_frames(tr.tracked, cfg.visible_frames)
-    V = visible_points(sv, tr.X_WO, vis_frames, mesh, cfg, rng)
+    V = visible_points(sv, tr.X_WO, vis_frames, mesh, cfg, rng,
+                       hull_seen=cfg.visible_hull_seen and closure.get("closure", False))
     if halfspace is not None and len(V):
         V = V[V @ halfspace[:3] + halfspace[3] <= 1e-6]
     if progress is not None:

@@ -10,7 +10,9 @@ surface points, which also fills whatever lies between them — the mouth and th
 beside a prism's ridge. Voxels of the hull that a keyframe saw through (``FreeSpace``: the depth reading there
 lies more than the carve margin behind the voxel) are set outside, S ← max(S, ``sdf_carve_value``), before the
 fit; the free-space term of the fit alone, an L1 push of weight 1 against the band term's 3000, leaves most of
-them filled.
+them filled. Support closure (``sdf_support_hull``): the hull also takes the seen points' feet on the frame-0 table
+plane, except in columns that reach seen-empty space before a seen surface going up (``open_columns``: a cavity
+seen into from above), and not at all when most of what it adds is so (``sdf_support_open_gate``: a mug).
 
 Other views' evidence: ``drop_contradicted`` (``sdf_drop_contradicted``) drops the object rays whose surface point
 another of the frames saw in front of its own reading (``service.sdf.contradicted_readings``: flying pixels,
@@ -19,7 +21,9 @@ frames measured (``service.sdf.evidence_band``), for ``fit_sdf(band_back=...)``.
 
 V: vertices of the convex hull of the visible mesh plus ``visible_samples`` area-uniform samples on the hull,
 kept when, in at least one checked frame, the point projects inside the object mask with observed depth
-agreeing with its own depth, |z_point − z_obs| < ``visible_depth_tol``.
+agreeing with its own depth, |z_point − z_obs| < ``visible_depth_tol``. Where the support closure shaped the start
+(``visible_hull_seen``), the hull is that of the mesh vertices passing the same check: the hull of the whole mesh
+spans the unseen closure, which lies a few millimetres outside the seen band.
 """
 
 from __future__ import annotations
@@ -129,7 +133,33 @@ def support_feet(P_O: np.ndarray, halfspace_O: np.ndarray) -> np.ndarray:
     return P - h[:, None] * n[None, :]
 
 
-def carved_init(rays: RaySet, sdf_cfg, carver, value: float, support_O: np.ndarray | None = None) -> "SdfGrid":
+def open_columns(idx: np.ndarray, P: np.ndarray, origin: np.ndarray, voxel: float, shape: tuple[int, int, int],
+                 carved: np.ndarray, surface: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """(len(idx),) bool: voxels ``idx`` (flat indices of the grid points P (M,3)) whose column upward (unit ``up``,
+    steps of one voxel, nearest voxel) reaches a ``carved`` voxel (flat (M,) bool: seen empty) before a
+    ``surface`` voxel (flat (M,) bool: near a seen point). Such a voxel lies under space the camera looked into
+    without meeting the object — a cavity seen from above (a mug's mouth) — so the support argument (the object
+    fills the space between a seen point and the table) does not reach it; under a seen surface it does."""
+    shp = np.asarray(shape)
+    carved3, surf3 = carved.reshape(shape), surface.reshape(shape)
+    Q = P[idx]
+    state = np.zeros(len(idx), np.int8)  # 0 open question, 1 a seen surface first, 2 seen-empty space first, 3 left
+    for j in range(1, int(np.ceil(np.linalg.norm(shp))) + 1):
+        und = np.nonzero(state == 0)[0]
+        if len(und) == 0:
+            break
+        k = np.round((Q[und] + j * voxel * up - origin) / voxel).astype(int)
+        inb = np.all((k >= 0) & (k < shp), 1)
+        state[und[~inb]] = 3
+        u2, k = und[inb], k[inb]
+        sf = surf3[k[:, 0], k[:, 1], k[:, 2]]
+        state[u2[sf]] = 1
+        state[u2[~sf & carved3[k[:, 0], k[:, 1], k[:, 2]]]] = 2
+    return state == 2
+
+
+def carved_init(rays: RaySet, sdf_cfg, carver, value: float, support_O: np.ndarray | None = None,
+                open_dilate: int | None = None, open_gate: float = 1.0, info: dict | None = None) -> "SdfGrid":
     """Initial SDF (the grid ``fit_sdf`` will use for ``rays`` and ``sdf_cfg``): the convex hull of the observed
     surface points, S = max over hull facets, with the voxels ``carver`` (``FreeSpace``; None: no carving) sees
     through set to at least ``value`` (m, > 0: outside).
@@ -138,22 +168,64 @@ def carved_init(rays: RaySet, sdf_cfg, carver, value: float, support_O: np.ndarr
     takes the foot of every observed point on it (``support_feet``; ``sdf_support_hull``): the object rests on the
     table, and the space between what was seen and the table that no keyframe saw empty — the part hidden by an
     occluder, the space under a never-seen back face — starts as object instead of air; the carving removes what
-    a keyframe saw through (the table under an overhang, the air beside a slanted face)."""
+    a keyframe saw through (the table under an overhang, the air beside a slanted face).
+
+    ``open_dilate`` (voxels, None: off; ``sdf_support_open``): the voxels the support closure adds to the hull of
+    the seen points and whose column upward meets seen-empty space before a seen surface (``open_columns``; seen
+    surface: the voxels of the observed points dilated by ``open_dilate``) keep the seen hull's start instead: the
+    unseen part of a cavity whose mouth the camera looked into (a mug's cavity behind its near wall) is not closed;
+    under a seen surface (a box's top, a prism's face, a mug's rim and wall) the closure stays. When more than
+    ``open_gate`` of the added voxels are so, the object has a cavity the camera looked into and the whole closure
+    is dropped (the start is the hull of the seen points, as without ``support_O``).
+
+    ``info``: optional dict, receives ``added`` (voxels the closure adds to the seen hull), ``open`` (of them, under
+    seen-empty space) and ``closure`` (whether the start keeps any of the closure)."""
     from service.sdf import SdfGrid
     from service.sdf.fit import default_bounds, hull_sdf, make_grid_geometry
     from service.sdf.grid import grid_points
 
     origin, voxel, shape = make_grid_geometry(default_bounds(rays, sdf_cfg.pad), sdf_cfg.resolution)
     P = grid_points(origin, voxel, shape).reshape(-1, 3)
-    surf = rays.surface_points_O
+    seen = rays.surface_points_O
+    surf = seen
     if support_O is not None:
         surf = np.concatenate([surf, support_feet(surf, support_O)])
     S = hull_sdf(surf, P)
     inside = S < value
+    opening = support_O is not None and open_dilate is not None
+    if opening:
+        S0 = hull_sdf(seen, P)  # the start without the closure (carved as below)
+        inside |= S0 < value  # (each hull is simplified on its own: not quite nested)
+    carved = np.zeros(len(P), bool)
     if carver is not None and inside.any():
         st = carver.seen_through(P[inside])
-        idx = np.nonzero(inside)[0][st]
-        S[idx] = value
+        carved[np.nonzero(inside)[0][st]] = True
+        S[carved] = np.maximum(S[carved], value)
+    if opening:
+        S0[carved] = np.maximum(S0[carved], value)
+        added = np.nonzero((S < 0) & (S0 >= 0))[0]
+        if len(added):
+            from scipy.ndimage import binary_dilation
+
+            k = np.round((seen - origin) / voxel).astype(int)
+            k = k[np.all((k >= 0) & (k < np.asarray(shape)), 1)]
+            near = np.zeros(shape, bool)
+            near[k[:, 0], k[:, 1], k[:, 2]] = True
+            if open_dilate > 0:
+                near = binary_dilation(near, iterations=int(open_dilate))
+            hs = np.asarray(support_O, float).reshape(4)
+            up = -hs[:3] / max(np.linalg.norm(hs[:3]), 1e-12)
+            rev = added[open_columns(added, P, origin, voxel, shape, carved, near.reshape(-1), up)]
+            S[rev] = S0[rev]
+            gated = len(rev) > open_gate * len(added)
+            if gated:  # a cavity seen into from above: no closure on this object
+                S = S0
+            if info is not None:
+                info.update(added=int(len(added)), open=int(len(rev)), closure=not gated and len(rev) < len(added))
+        elif info is not None:
+            info.update(added=0, open=0, closure=False)
+    elif info is not None and support_O is not None:
+        info.update(closure=True)
     return SdfGrid(origin_O=origin, voxel=voxel, values=S.reshape(shape).astype(np.float32))
 
 
@@ -183,17 +255,32 @@ def drop_contradicted(session, X_WO: np.ndarray, frames: np.ndarray, rays: RaySe
 
 
 def visible_points(session, X_WO: np.ndarray, frames: np.ndarray, mesh: Mesh, cfg,
-                   rng: np.random.Generator) -> np.ndarray:
-    """The visible set V (K,3) in O (see module docstring)."""
+                   rng: np.random.Generator, hull_seen: bool | None = None) -> np.ndarray:
+    """The visible set V (K,3) in O (see module docstring). ``hull_seen`` (None: ``cfg.visible_hull_seen``): the
+    hull of the mesh's vertices that pass the visibility check instead of the hull of the whole mesh."""
     import trimesh
 
     if mesh.is_empty:
         return np.zeros((0, 3))
     hull = mesh.to_trimesh().convex_hull
+    if cfg.visible_hull_seen if hull_seen is None else hull_seen:  # the hull of the mesh's vertices that pass the same check, not of the whole mesh
+        vv = np.asarray(mesh.vertices, float)
+        ok = _seen(session, X_WO, frames, vv, cfg.visible_depth_tol)
+        if ok.sum() >= 4:
+            try:
+                hull = trimesh.points.PointCloud(vv[ok]).convex_hull
+            except Exception:  # degenerate (flat) seen part: keep the whole mesh's hull
+                pass
     cand = np.asarray(hull.vertices, float)
     if cfg.visible_samples > 0:
         samp, _ = trimesh.sample.sample_surface(hull, cfg.visible_samples, seed=int(rng.integers(1 << 31)))
         cand = np.concatenate([cand, np.asarray(samp, float)])
+    return cand[_seen(session, X_WO, frames, cand, cfg.visible_depth_tol)]
+
+
+def _seen(session, X_WO: np.ndarray, frames: np.ndarray, cand: np.ndarray, tol: float) -> np.ndarray:
+    """(K,) bool: points (K,3) in O that project inside the object mask of at least one of ``frames`` with observed
+    depth within ``tol`` of their own."""
     seen = np.zeros(len(cand), bool)
     K = session.K
     for i in frames:
@@ -204,6 +291,6 @@ def visible_points(session, X_WO: np.ndarray, frames: np.ndarray, mesh: Mesh, cf
         z = P[:, 2]
         u, v, inside = project_to_pixels(P, K, depth.shape)
         ui, vi = u[inside], v[inside]
-        ok = mask[vi, ui] & (depth[vi, ui] > 0) & (np.abs(depth[vi, ui] - z[inside]) < cfg.visible_depth_tol)
+        ok = mask[vi, ui] & (depth[vi, ui] > 0) & (np.abs(depth[vi, ui] - z[inside]) < tol)
         seen[np.nonzero(inside)[0][ok]] = True
-    return cand[seen]
+    return seen

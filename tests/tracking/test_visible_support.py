@@ -99,9 +99,9 @@ def test_support_closes_the_hidden_lower_part_and_stays_inside():
     assert np.all(sdf_query(fit, outside) > 0), sdf_query(fit, outside)
 
 
-def test_support_hull_needs_the_table_plane():
+def test_support_hull_acts_only_with_the_table_plane():
     from service.tracking import TrackingConfig
 
-    assert not TrackingConfig().sdf_support_hull or TrackingConfig().below_table_outside
-    with pytest.raises(ValueError, match="sdf_support_hull"):
-        TrackingConfig(sdf_support_hull=True, below_table_outside=False)
+    cfg = TrackingConfig()
+    assert cfg.sdf_support_hull and cfg.below_table_outside
+    TrackingConfig(below_table_outside=False)  # valid: no plane, no closure (tracking.run passes no support plane)
