@@ -916,7 +916,8 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
 
     empty = (np.zeros((0, 3)), None)
     feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
-    common = dict(tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg, smooth=cfg.spin_smooth,
+    common = dict(tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
+                  smooth=1 if cfg.spin_twist_smooth > 1 else cfg.spin_smooth,  # twist filtered instead (below)
                   match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)
     graph = dict(gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
                  long_votes=cfg.spin_graph_long_votes)
@@ -934,6 +935,10 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
                                    agree=cfg.spin_roll_agree, tol=cfg.spin_roll_tol), **common, **graph)
     else:  # the per-frame chain (spin.spin_closure)
         res = spin_closure(feats, X, model.Q, model.N, min_votes=cfg.spin_min_votes, **common)
+    if cfg.spin_twist_smooth > 1:  # the body's twist median-filtered instead of the correction (spin.smooth_twist)
+        from service.tracking.spin import smooth_twist
+
+        res = smooth_twist(res, X, cfg.spin_twist_smooth, cfg.spin_max_deg)
     X[:] = apply_spin(X, res)
     return res
 
