@@ -343,6 +343,17 @@ class TrackingConfig:
     # resettle.base_shift): the base must not lie where the first resettle_refine_frames tracked frames from the settled
     # frame on see the table or background; 0: off. 30: development 820 7.30 -> 6.46 mm, oat 830 7.81 -> 1.23 mm median
     resettle_refine_frames: int = 30
+    # a body of revolution does not turn about its own axis while it topples (service.tracking.fall: no force on it
+    # has a moment about the axis): over a topple of the tracked poses (the axis' angle from the vertical changing by
+    # more than spin_fall_rate_deg per frame and by >= spin_fall_min_deg in all, trimmed by spin_fall_edge_deg at
+    # both ends) the spin correction takes the increments that leave the tracked rotation no twist about the axis,
+    # when the default estimate's spin change over it differs from theirs by more than spin_fall_tol_deg (spin_solver
+    # "mixed" only; not with spin_roll); docs/tracking.md "Fall without spin"
+    spin_fall: bool = True
+    spin_fall_rate_deg: float = 0.4
+    spin_fall_min_deg: float = 45.0
+    spin_fall_edge_deg: float = 1.0
+    spin_fall_tol_deg: float = 3.0
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -433,6 +444,11 @@ class TrackingConfig:
             raise ValueError("TrackingConfig.sdf_support_hull needs below_table_outside (the table plane at frame 0)")
         if not (isinstance(self.resettle_refine_frames, int) and self.resettle_refine_frames >= 0):
             raise ValueError(f"TrackingConfig.resettle_refine_frames must be an int >= 0, not {self.resettle_refine_frames!r}")
+        for name in ("spin_fall_rate_deg", "spin_fall_edge_deg", "spin_fall_tol_deg"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        if not 0 < self.spin_fall_min_deg <= 90:
+            raise ValueError(f"TrackingConfig.spin_fall_min_deg must be in (0, 90], not {self.spin_fall_min_deg!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages``, ``color_stages`` or ``sil_stages`` (comma-separated; ValueError for
