@@ -7,8 +7,8 @@ point, so every normal force line meets the axis (or is parallel to it): none ha
 friction moments small, Euler's equation for a symmetric body about its axis, I_a dω_a/dt = τ_a ≈ 0, keeps the
 spin rate ω·a constant through the topple, and it is 0 for a body at rest before the push. Measured on the lab's
 bottle topples (development seeds 521, 531, 571, 850; ground truth read by the diagnosis only): the spin about the
-axis over the whole topple (about 35 frames, the axis turning 90°) is 0.6-1.0°, while the tracker adds a false
-spin of 1°/frame while the bottle starts to tip (0.3-1°/frame of tilt, keypoints following the outline) and up to
+axis over the whole topple (about 35 frames, the axis turning 90°) is 0.6-2°, while the tracker adds a false
+spin of 0.5-0.8° per degree of tilt while the bottle starts to tip (about 1° of tilt per frame) and up to
 4°/frame in the fast fall (development 531: −27°, 850: +41° by the landing), which the texture (``spin``: chain,
 graph) follows only partly (531: 19° of the 27°, 850: 26° of 41°; docs/tracking.md "Fall without spin").
 
