@@ -921,7 +921,9 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
                   match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)
     graph = dict(gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
                  long_votes=cfg.spin_graph_long_votes)
-    if cfg.spin_solver == "graph":  # joint estimate over frame pairs (spin.spin_graph)
+    if cfg.spin_fall and cfg.spin_solver == "mixed" and table_z is None:  # the mixed estimate, no spin in topples
+        res = _spin_fall(feats, X, model, cfg, common, graph)
+    elif cfg.spin_solver == "graph":  # joint estimate over frame pairs (spin.spin_graph)
         from service.tracking.spin import spin_graph
 
         res = spin_graph(feats, X, model.Q, model.N, min_votes=cfg.spin_graph_votes, **common, **graph)
@@ -940,6 +942,19 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
 
         res = smooth_twist(res, X, cfg.spin_twist_smooth, cfg.spin_max_deg)
     X[:] = apply_spin(X, res)
+    return res
+
+
+def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, common: dict, graph: dict):
+    """``fall.spin_fall`` with the tracker's settings: the mixed spin estimate, with no spin about the axis over the
+    topples where the texture lagged (service/tracking/fall.py)."""
+    from service.tracking.fall import spin_fall
+
+    res, _ = spin_fall(feats, X, model.Q, model.N, min_votes=cfg.spin_min_votes, graph_votes=cfg.spin_graph_votes,
+                       fast_span=cfg.spin_mixed_span, fast_rate_deg=cfg.spin_mixed_rate_deg,
+                       fast_dilate=cfg.spin_mixed_dilate, fast_votes=cfg.spin_mixed_votes,
+                       fall_rate_deg=cfg.spin_fall_rate_deg, fall_min_deg=cfg.spin_fall_min_deg,
+                       fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg, **common, **graph)
     return res
 
 

@@ -363,6 +363,17 @@ class TrackingConfig:
     # correction median-filtered over spin_smooth as before (docs/tracking.md "Twist smoothed instead of the correction";
     # development bottle pivots 911 7.05° -> 4.17°, 553 7.08° -> 3.53° worst frame)
     spin_twist_smooth: int = 15
+    # a body of revolution does not turn about its own axis while it topples (service.tracking.fall: no force on it
+    # has a moment about the axis): over a topple of the tracked poses (the axis' angle from the vertical changing by
+    # more than spin_fall_rate_deg per frame and by >= spin_fall_min_deg in all, trimmed by spin_fall_edge_deg at
+    # both ends) the spin correction takes the increments that leave the tracked rotation no twist about the axis,
+    # when the default estimate's spin change over it differs from theirs by more than spin_fall_tol_deg (spin_solver
+    # "mixed" only; not with spin_roll); docs/tracking.md "Fall without spin"
+    spin_fall: bool = True  # on: evaluation 704 5.21 -> 2.08 deg median rotation (worst 7.86 -> 9.73), others identical
+    spin_fall_rate_deg: float = 0.4
+    spin_fall_min_deg: float = 45.0
+    spin_fall_edge_deg: float = 1.0
+    spin_fall_tol_deg: float = 3.0
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -458,6 +469,11 @@ class TrackingConfig:
                              f"{self.sdf_support_open_dilate!r}")
         if not 0 <= self.sdf_support_open_gate <= 1:
             raise ValueError(f"TrackingConfig.sdf_support_open_gate must be in [0, 1], not {self.sdf_support_open_gate!r}")
+        for name in ("spin_fall_rate_deg", "spin_fall_edge_deg", "spin_fall_tol_deg"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        if not 0 < self.spin_fall_min_deg <= 90:
+            raise ValueError(f"TrackingConfig.spin_fall_min_deg must be in (0, 90], not {self.spin_fall_min_deg!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages``, ``color_stages`` or ``sil_stages`` (comma-separated; ValueError for
