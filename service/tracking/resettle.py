@@ -274,3 +274,55 @@ def base_shift(B_W: np.ndarray, seen: "callable", f: np.ndarray, max_shift: floa
         if float(np.mean(seen(B_W + s * f))) <= tol:
             return float(s)
     return 0.0
+
+
+def tip_path(X_a: np.ndarray, X_b: np.ndarray, pivot: np.ndarray) -> "callable":
+    """The poses of a topple between the pose X_a (4,4) before the fall and the settled pose X_b (4,4) as a turn
+    about the line through ``pivot`` (3,) (the leading bottom edge at X_a, on the table) along the axis of the
+    rotation R_b R_aᵀ: ``path(u)`` (u in [0, 1]) turns X_a by u of that rotation about the line, plus u of the
+    residual slide (the landing's slide beyond the pure turn, and the errors of the pivot), so that path(0) = X_a and
+    path(1) = X_b. Returns the function u -> (4,4)."""
+    R_a, t_a = X_a[:3, :3], X_a[:3, 3]
+    w = so3_log(X_b[:3, :3] @ R_a.T)
+    slide = X_b[:3, 3] - (pivot + so3_exp(w) @ (t_a - pivot))
+
+    def path(u: float) -> np.ndarray:
+        R_u = so3_exp(u * w)
+        return make_X(R_u @ R_a, pivot + R_u @ (t_a - pivot) + u * slide)
+
+    return path
+
+
+def leading_pivot(B_W: np.ndarray, f: np.ndarray, table_height: float) -> np.ndarray:
+    """(3,) point of the leading bottom edge: the base points B_W (B,3) (``base_points`` placed at the pose before
+    the fall) moved along the horizontal unit direction f (3,) to their farthest extent along f, at their centre
+    across f, on the table."""
+    c = B_W.mean(0)
+    p = c + (float(np.max(B_W @ f)) - float(c @ f)) * f
+    p[2] = table_height
+    return p
+
+
+def path_distance(X: np.ndarray, poses: list[np.ndarray]) -> tuple[float, float, int]:
+    """(rotation deg, translation m, index) of the pose among ``poses`` (list of (4,4)) whose rotation is nearest
+    to that of X (4,4)."""
+    d = [pose_distance(X, P) for P in poses]
+    k = int(np.argmin([a for _, a in d]))
+    return float(d[k][1]), float(d[k][0]), k
+
+
+def path_fit(P_W: np.ndarray, poses: list[np.ndarray], tree, inlier_dist: float, ok: "callable"
+             ) -> tuple[int, float] | None:
+    """(index, inlier fraction) of the pose among ``poses`` (list of (4,4)) that the frame's points P_W (N,3) fit
+    best (fraction within ``inlier_dist`` of the model with KD-tree ``tree``; ties: the mean distance capped at
+    2 cm) among those with ``ok(X)`` (consistent with the table and the frame's own free space); None when none is."""
+    keys = []
+    for X in poses:
+        X_OW = X_inv(X)
+        d, _ = tree.query(P_W @ X_OW[:3, :3].T + X_OW[:3, 3], distance_upper_bound=0.02)
+        d = np.minimum(d, 0.02)
+        keys.append((float(np.mean(d < inlier_dist)), -float(np.mean(d))))
+    for k in sorted(range(len(poses)), key=lambda k: keys[k], reverse=True):
+        if ok(poses[k]):
+            return k, keys[k][0]
+    return None

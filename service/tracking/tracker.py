@@ -583,6 +583,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 _report(progress, 0.62 + 0.18 * i / N, f"final registration {i}/{N}")
         if cfg.final_neighbors:
             _final_from_neighbors(session, obs, X, tracked, frac, rmse, model, cfg, icp_kw)
+        if cfg.resettle_path and any(ld.adopted for ld in landings):  # fall frames off the tipping path
+            _resettle_path(session, obs, X, tracked, frac, rmse, model, keyframes, landings, cfg)
         if cfg.regauge_frame0:
             from dataclasses import replace as _replace
 
@@ -871,6 +873,71 @@ def _resettle_refine(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
                     carver.update_pose(kf.index, kf.X_WO)
         moved = True
     return _model_from(keyframes, cfg.model_voxel) if moved else None
+
+
+def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
+                   rmse: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], landings: list,
+                   cfg: TrackingConfig) -> list[tuple[int, float, float, bool]]:
+    """The fall's frames of every adopted topple join checked against the tipping motion the physics implies
+    (``resettle.tip_path``): between the last tracked frame a before the fall and the settled frame i the object
+    turns about its leading bottom edge (``resettle.leading_pivot``: the base of frame 0's footprint, placed at X[a],
+    at its extent along the tipping direction, on the table). A frame whose pose is lost, inconsistent with the table
+    or its own free space (``landing.pose_consistent``), or more than ``resettle_path_deg`` / ``resettle_path_dist``
+    from the nearest pose of the path takes the path's pose (every ``resettle_path_step_deg`` of the turn) that its
+    points fit best among the consistent ones (``resettle.path_fit``); it counts as tracked when that pose is a good
+    registration (inlier fraction, residual). Updates X, tracked, frac, rmse in place; returns per checked frame
+    (index, rotation and translation from the path, replaced)."""
+    from service.tracking.geometry import icp_result
+    from service.tracking.landing import pose_consistent
+    from service.tracking.resettle import base_points, leading_pivot, path_distance, path_fit, tip_path
+
+    Q = model.Q[:: max(1, len(model.Q) // 4000)]
+    out = []
+    for ld in landings:
+        if not ld.adopted:
+            continue
+        i = ld.i
+        before = [j for j in range(ld.g0) if tracked[j]]
+        pre = [kf for kf in keyframes if kf.index < ld.g0]
+        if not before or not pre or not tracked[i]:
+            continue
+        a = before[-1]
+        w = so3_log(X[i][:3, :3] @ X[a][:3, :3].T)
+        h = np.array([w[0], w[1], 0.0])
+        if np.linalg.norm(h) < 1e-6:
+            continue
+        f = np.cross(h / np.linalg.norm(h), [0.0, 0.0, 1.0])
+        B = base_points(_model_from(pre, cfg.model_voxel).Q, X[0], session.table_height)
+        if len(B) < 30:
+            continue
+        pivot = leading_pivot(B @ X[a][:3, :3].T + X[a][:3, 3], f, session.table_height)
+        path = tip_path(X[a], X[i], pivot)
+        n = max(2, int(np.ceil(np.degrees(np.linalg.norm(w)) / cfg.resettle_path_step_deg)))
+        poses = [path(k / n) for k in range(n + 1)]
+        for j in range(a + 1, i):
+            o = obs[j]
+            if len(o.P_W) < cfg.min_points:
+                continue
+            view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
+            view.add(j, session.depth(j), np.eye(4))
+
+            def ok(Xc: np.ndarray) -> bool:
+                return pose_consistent(Xc, Q, session.table_height, view, cfg.landing_table_margin,
+                                       cfg.landing_table_frac, cfg.landing_seen_frac)
+
+            d_rot, d_t, _ = path_distance(X[j], poses)
+            if tracked[j] and d_rot <= cfg.resettle_path_deg and d_t <= cfg.resettle_path_dist and ok(X[j]):
+                out.append((j, d_rot, d_t, False))
+                continue
+            fit = path_fit(o.P_W, poses, model.tree, cfg.inlier_dist, ok)
+            if fit is None:
+                out.append((j, d_rot, d_t, False))
+                continue
+            r = icp_result(X_inv(poses[fit[0]]), o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist)
+            X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse
+            tracked[j] = _good(r, cfg)
+            out.append((j, d_rot, d_t, True))
+    return out
 
 
 def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,

@@ -343,6 +343,14 @@ class TrackingConfig:
     # resettle.base_shift): the base must not lie where the first resettle_refine_frames tracked frames from the settled
     # frame on see the table or background; 0: off. 30: development 820 7.30 -> 6.46 mm, oat 830 7.81 -> 1.23 mm median
     resettle_refine_frames: int = 30
+    # the fall's frames of an adopted join checked against the tipping motion (tracker._resettle_path,
+    # resettle.tip_path): a frame lost, inconsistent, or more than resettle_path_deg / resettle_path_dist from the
+    # turn about the leading bottom edge between the last pose before the fall and the join takes the path's pose
+    # (every resettle_path_step_deg) its points fit best among those consistent with the table and its free space
+    resettle_path: bool = False
+    resettle_path_deg: float = 5.0
+    resettle_path_dist: float = 0.02
+    resettle_path_step_deg: float = 1.0
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -431,6 +439,9 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.resettle_delay must be >= 1, not {self.resettle_delay!r}")
         if self.sdf_support_hull and not self.below_table_outside:
             raise ValueError("TrackingConfig.sdf_support_hull needs below_table_outside (the table plane at frame 0)")
+        for name in ("resettle_path_deg", "resettle_path_dist", "resettle_path_step_deg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"TrackingConfig.{name} must be > 0, not {getattr(self, name)!r}")
         if not (isinstance(self.resettle_refine_frames, int) and self.resettle_refine_frames >= 0):
             raise ValueError(f"TrackingConfig.resettle_refine_frames must be an int >= 0, not {self.resettle_refine_frames!r}")
 
