@@ -134,12 +134,16 @@ def face_plane(P: np.ndarray, N: np.ndarray, d: np.ndarray, cos_min: float, min_
 
 
 def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
-                 face_cos: float = np.cos(np.radians(30.0))) -> tuple[np.ndarray, bool]:
+                 face_cos: float = np.cos(np.radians(30.0)), base_n_O: np.ndarray | None = None,
+                 square_deg: float = 0.0) -> tuple[np.ndarray, bool]:
     """Pose (4,4) of the object after tipping about the horizontal unit axis h (3,) from rest pose X_r until its
     leading face lies on the table (see module docstring, step 2). Q_O, N_O (M,3): the pre-fall model.
     With the leading face in the model (``face_plane``), the turn is about the horizontal line where its plane meets
     the table, by the angle that lays its normal n_f on −z (h only picks the face); without it, 90° about h through
     the model's extent along the tipping direction on the table, then lowered onto the table.
+    ``base_n_O`` (3,): the outward normal of the base the object stood on (in O; −z at frame 0); with
+    ``square_deg`` > 0 a face normal within that angle of perpendicular to it is made perpendicular (the side face
+    of a body standing on a flat base, e.g. a carton: a noisy plane fit tilts the landed object by its error).
     Returns (pose, whether the leading face was found)."""
     R_r, t_r = X_r[:3, :3], X_r[:3, 3]
     P = Q_O @ R_r.T + t_r
@@ -150,6 +154,17 @@ def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarra
     plane = face_plane(P, Nw, f, face_cos, 0.03)
     if plane is not None and np.hypot(*plane[0][:2]) > 0.7:
         n_f, d_f = plane
+        if base_n_O is not None and square_deg > 0:
+            b = R_r @ base_n_O
+            b /= np.linalg.norm(b)
+            if abs(n_f @ b) < np.sin(np.radians(square_deg)):
+                n_f = n_f - (n_f @ b) * b
+                n_f /= np.linalg.norm(n_f)
+                sel = Nw @ n_f > face_cos
+                F = P[sel]
+                F = F[np.abs((F - np.median(F, 0)) @ n_f) < 0.01]
+                if len(F) >= 10:
+                    d_f = float(np.median(F @ n_f))
         u = np.array([n_f[0], n_f[1], 0.0])
         u /= np.linalg.norm(u)
         h_f = np.cross(z, u)  # horizontal, normal to n_f: the edge the object turns about
@@ -326,3 +341,21 @@ def path_fit(P_W: np.ndarray, poses: list[np.ndarray], tree, inlier_dist: float,
         if ok(poses[k]):
             return k, keys[k][0]
     return None
+
+
+def rest_offsets(X: np.ndarray, X_j: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
+                 cos_min: float = np.cos(np.radians(30.0)), tol: float = 0.005) -> tuple[float, float] | None:
+    """How far the pose X (4,4) is from resting on the face the join X_j (4,4) lays on the table: (angle in degrees
+    between that face's mean normal and −z, median height of its points above the table) at X. The face: the
+    model's points Q_O (M,3) with normals N_O (M,3) within acos(cos_min) of −z and within ``tol`` of the table at
+    X_j (at least 10; else None). A settled object lies on the table: a tracked pose off it by more than the join's
+    own error is not the settled pose."""
+    Nj = N_O @ X_j[:3, :3].T
+    zj = Q_O @ X_j[2, :3] + X_j[2, 3]
+    sel = (Nj[:, 2] < -cos_min) & (np.abs(zj - table_height) < tol)
+    if sel.sum() < 10:
+        return None
+    n = N_O[sel].mean(0) @ X[:3, :3].T
+    n /= np.linalg.norm(n)
+    tilt = float(np.degrees(np.arccos(np.clip(-n[2], -1.0, 1.0))))
+    return tilt, float(np.median(Q_O[sel] @ X[2, :3] + X[2, 3]) - table_height)

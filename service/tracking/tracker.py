@@ -773,7 +773,7 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     ``carver`` changed in place), X[i] takes it and frame i becomes a keyframe with all its points; returns (the ICP
     result at the new pose, the new model), else None. Every fall checked is appended to ``landings``."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import face_offsets, find_fall, landing_pose, reach_along
+    from service.tracking.resettle import face_offsets, find_fall, landing_pose, reach_along, rest_offsets
     from service.tracking.settle import Landing
 
     ev = find_fall(X, tracked, i, cfg.settle_fast_deg, cfg.settle_fall_deg, cfg.resettle_tip_deg,
@@ -785,7 +785,8 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     if not pre:
         return None
     M = _model_from(pre, cfg.model_voxel)
-    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height)
+    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height, base_n_O=X[0][:3, :3].T @ [0.0, 0.0, -1.0],
+                            square_deg=cfg.resettle_square_deg)
     Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift,
                       max_yaw_deg=cfg.resettle_max_yaw_deg)
     Xj = reach_along(Xj, M.Q, o.P_W, np.cross(h, [0.0, 0.0, 1.0]), cfg.resettle_max_shift)
@@ -801,7 +802,11 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     # adopted only for an object that lands on a flat face, when the joined pose is at least as consistent with the
     # frame's free space as the tracked one (the pre-fall model placed with it covers no more pixels where the frame
     # sees the table or background); a wrong track need not be shown wrong by that test (its model fits the upper part)
-    adopt = (dt > cfg.resettle_min_dist or da > cfg.resettle_min_deg) and face and s_new <= s_old + cfg.resettle_seen
+    far = dt > cfg.resettle_min_dist or da > cfg.resettle_min_deg
+    if not far and face and cfg.resettle_rest_deg > 0:  # a tracked pose near the join but not resting on the table
+        off = rest_offsets(X[i], Xj, M.Q, M.N, session.table_height)
+        far = off is not None and (off[0] > cfg.resettle_rest_deg or abs(off[1]) > cfg.resettle_rest_dist)
+    adopt = far and face and s_new <= s_old + cfg.resettle_seen
     landings.append(Landing(g0, i, X[i].copy(), Xj.copy(), s_old, s_new, bool(adopt)))
     if not adopt:
         return None

@@ -351,6 +351,14 @@ class TrackingConfig:
     resettle_path_deg: float = 5.0
     resettle_path_dist: float = 0.02
     resettle_path_step_deg: float = 1.0
+    # the leading face made perpendicular to the base the object stood on at frame 0 when its fitted normal is within
+    # resettle_square_deg of that (resettle.landing_pose; 0: off)
+    resettle_square_deg: float = 0.0
+    # a join within resettle_min_deg / resettle_min_dist of the tracked pose is adopted too when the tracked pose has
+    # the face the join lays on the table more than resettle_rest_deg from flat or resettle_rest_dist above or below
+    # the table (resettle.rest_offsets: a settled object rests on the table; 0: off)
+    resettle_rest_deg: float = 0.0
+    resettle_rest_dist: float = 0.005
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -439,6 +447,11 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.resettle_delay must be >= 1, not {self.resettle_delay!r}")
         if self.sdf_support_hull and not self.below_table_outside:
             raise ValueError("TrackingConfig.sdf_support_hull needs below_table_outside (the table plane at frame 0)")
+        if not 0.0 <= self.resettle_square_deg < 90.0:
+            raise ValueError(f"TrackingConfig.resettle_square_deg must be in [0, 90), not {self.resettle_square_deg!r}")
+        if not (self.resettle_rest_deg >= 0 and self.resettle_rest_dist > 0):
+            raise ValueError(f"TrackingConfig.resettle_rest_deg must be >= 0 and resettle_rest_dist > 0, not "
+                             f"{self.resettle_rest_deg!r}, {self.resettle_rest_dist!r}")
         for name in ("resettle_path_deg", "resettle_path_dist", "resettle_path_step_deg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, not {getattr(self, name)!r}")

@@ -3,7 +3,7 @@
 import numpy as np
 
 from service.tracking.resettle import (base_points, base_shift, face_offsets, find_fall, landing_pose, leading_pivot,
-                                      path_distance, path_fit, reach_along, tip_path)
+                                      path_distance, path_fit, reach_along, rest_offsets, tip_path)
 from service.transforms import X_inv, make_X, pose_distance, so3_exp
 
 SIZE = np.array([0.07, 0.07, 0.185])  # a milk carton standing, its centre at the origin of O
@@ -193,3 +193,16 @@ def test_fall_frame_found_on_the_tipping_path():
     off = poses[k_true] @ make_X(so3_exp(np.array([0.0, 0.0, np.radians(20.0)])), np.zeros(3))
     assert path_distance(off, poses)[0] > 15.0
     assert path_distance(poses[40], poses)[:2] == (0.0, 0.0)
+
+
+def test_rest_offsets_of_a_pose_not_lying_on_the_face():
+    table = 0.0
+    X_r = make_X(np.eye(3), np.array([0.4, 0.1, table + SIZE[2] / 2]))
+    truth = settled_truth(X_r, table)
+    Q, Nq = box_faces()
+    tilt, height = rest_offsets(truth, truth, Q, Nq, table)
+    assert tilt < 0.1 and abs(height) < 0.001
+    # the same pose tilted 4° about the tipping direction and lifted 9 mm (a track that lost the landing)
+    off = make_X(so3_exp(np.array([0.0, np.radians(4.0), 0.0])) @ truth[:3, :3], truth[:3, 3] + [0.0, 0.0, 0.009])
+    tilt, height = rest_offsets(off, truth, Q, Nq, table)
+    assert abs(tilt - 4.0) < 0.1 and abs(height - 0.009) < 0.002
