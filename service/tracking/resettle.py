@@ -35,7 +35,13 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    until the object's base (``base_points``: the table plane under the rest pose, within the model's footprint)
    no longer lies where the settled frames see the table or background (``base_shift``); the lab's cartons land
    6–15 mm beyond the pure turn about the edge, and after the topple the base faces −f, behind the object.
-What is left: the join is 1–3° off and a few millimetres sideways; the base test is a lower bound of the slide
+5. Options, off by default (``resettle_square_deg``): a leading-face normal within a few degrees of perpendicular to the base the object
+   stood on at frame 0 is made perpendicular (a side of a prism standing on its base; the fit's error would stay as
+   the landed object's tilt); a join near the tracked pose is adopted when the tracked pose does not rest on the face
+   the join lays on the table (``rest_offsets``); after the final pass the fall's frames that are lost, inconsistent,
+   or off the turn about the leading bottom edge between the last pose before the fall and the join (``tip_path``,
+   ``leading_pivot``) take the path pose their points fit best (``path_fit``; ``tracker._resettle_path``).
+What is left: the join is 0.5–2° off (a yaw the table does not fix) and up to 9 mm sideways; the base test is a lower bound of the slide
 along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
 manipulation"); plane-based registration (Pathak et al. 2010, "Fast registration based on noisy planes").

@@ -27,7 +27,10 @@ fall, the fall's keyframes dropped and its frames registered backwards (``servic
 Topple landings (``resettle``, on): the pre-fall model tipped about its leading bottom edge onto its leading face
 replaces a track far from it a few frames after the landing, the settled frame a keyframe with all its points
 (``service.tracking.resettle``); after the loop the join moves along the tipping direction until the object's base
-is no longer where the settled frames see the table (``resettle_refine_frames``).
+is no longer where the settled frames see the table (``resettle_refine_frames``); the leading face is made square to
+the base the object stood on (``resettle_square_deg``, off), a join near a track that does not rest on the table is
+adopted too (``resettle_rest_deg``, off), and fall frames off the turn about the leading bottom edge take the path
+pose their points fit (``resettle_path``, off).
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
 normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
 or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
