@@ -35,7 +35,13 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    until the object's base (``base_points``: the table plane under the rest pose, within the model's footprint)
    no longer lies where the settled frames see the table or background (``base_shift``); the lab's cartons land
    6–15 mm beyond the pure turn about the edge, and after the topple the base faces −f, behind the object.
-What is left: the join is 1–3° off and a few millimetres sideways; the base test is a lower bound of the slide
+5. Options, off by default (``resettle_square_deg``): a leading-face normal within a few degrees of perpendicular to the base the object
+   stood on at frame 0 is made perpendicular (a side of a prism standing on its base; the fit's error would stay as
+   the landed object's tilt); a join near the tracked pose is adopted when the tracked pose does not rest on the face
+   the join lays on the table (``rest_offsets``); after the final pass the fall's frames that are lost, inconsistent,
+   or off the turn about the leading bottom edge between the last pose before the fall and the join (``tip_path``,
+   ``leading_pivot``) take the path pose their points fit best (``path_fit``; ``tracker._resettle_path``).
+What is left: the join is 0.5–2° off (a yaw the table does not fix) and up to 9 mm sideways; the base test is a lower bound of the slide
 along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
 manipulation"); plane-based registration (Pathak et al. 2010, "Fast registration based on noisy planes").
@@ -134,12 +140,16 @@ def face_plane(P: np.ndarray, N: np.ndarray, d: np.ndarray, cos_min: float, min_
 
 
 def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
-                 face_cos: float = np.cos(np.radians(30.0))) -> tuple[np.ndarray, bool]:
+                 face_cos: float = np.cos(np.radians(30.0)), base_n_O: np.ndarray | None = None,
+                 square_deg: float = 0.0) -> tuple[np.ndarray, bool]:
     """Pose (4,4) of the object after tipping about the horizontal unit axis h (3,) from rest pose X_r until its
     leading face lies on the table (see module docstring, step 2). Q_O, N_O (M,3): the pre-fall model.
     With the leading face in the model (``face_plane``), the turn is about the horizontal line where its plane meets
     the table, by the angle that lays its normal n_f on −z (h only picks the face); without it, 90° about h through
     the model's extent along the tipping direction on the table, then lowered onto the table.
+    ``base_n_O`` (3,): the outward normal of the base the object stood on (in O; −z at frame 0); with
+    ``square_deg`` > 0 a face normal within that angle of perpendicular to it is made perpendicular (the side face
+    of a body standing on a flat base, e.g. a carton: a noisy plane fit tilts the landed object by its error).
     Returns (pose, whether the leading face was found)."""
     R_r, t_r = X_r[:3, :3], X_r[:3, 3]
     P = Q_O @ R_r.T + t_r
@@ -150,6 +160,17 @@ def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarra
     plane = face_plane(P, Nw, f, face_cos, 0.03)
     if plane is not None and np.hypot(*plane[0][:2]) > 0.7:
         n_f, d_f = plane
+        if base_n_O is not None and square_deg > 0:
+            b = R_r @ base_n_O
+            b /= np.linalg.norm(b)
+            if abs(n_f @ b) < np.sin(np.radians(square_deg)):
+                n_f = n_f - (n_f @ b) * b
+                n_f /= np.linalg.norm(n_f)
+                sel = Nw @ n_f > face_cos
+                F = P[sel]
+                F = F[np.abs((F - np.median(F, 0)) @ n_f) < 0.01]
+                if len(F) >= 10:
+                    d_f = float(np.median(F @ n_f))
         u = np.array([n_f[0], n_f[1], 0.0])
         u /= np.linalg.norm(u)
         h_f = np.cross(z, u)  # horizontal, normal to n_f: the edge the object turns about
@@ -274,3 +295,73 @@ def base_shift(B_W: np.ndarray, seen: "callable", f: np.ndarray, max_shift: floa
         if float(np.mean(seen(B_W + s * f))) <= tol:
             return float(s)
     return 0.0
+
+
+def tip_path(X_a: np.ndarray, X_b: np.ndarray, pivot: np.ndarray) -> "callable":
+    """The poses of a topple between the pose X_a (4,4) before the fall and the settled pose X_b (4,4) as a turn
+    about the line through ``pivot`` (3,) (the leading bottom edge at X_a, on the table) along the axis of the
+    rotation R_b R_aᵀ: ``path(u)`` (u in [0, 1]) turns X_a by u of that rotation about the line, plus u of the
+    residual slide (the landing's slide beyond the pure turn, and the errors of the pivot), so that path(0) = X_a and
+    path(1) = X_b. Returns the function u -> (4,4)."""
+    R_a, t_a = X_a[:3, :3], X_a[:3, 3]
+    w = so3_log(X_b[:3, :3] @ R_a.T)
+    slide = X_b[:3, 3] - (pivot + so3_exp(w) @ (t_a - pivot))
+
+    def path(u: float) -> np.ndarray:
+        R_u = so3_exp(u * w)
+        return make_X(R_u @ R_a, pivot + R_u @ (t_a - pivot) + u * slide)
+
+    return path
+
+
+def leading_pivot(B_W: np.ndarray, f: np.ndarray, table_height: float) -> np.ndarray:
+    """(3,) point of the leading bottom edge: the base points B_W (B,3) (``base_points`` placed at the pose before
+    the fall) moved along the horizontal unit direction f (3,) to their farthest extent along f, at their centre
+    across f, on the table."""
+    c = B_W.mean(0)
+    p = c + (float(np.max(B_W @ f)) - float(c @ f)) * f
+    p[2] = table_height
+    return p
+
+
+def path_distance(X: np.ndarray, poses: list[np.ndarray]) -> tuple[float, float, int]:
+    """(rotation deg, translation m, index) of the pose among ``poses`` (list of (4,4)) whose rotation is nearest
+    to that of X (4,4)."""
+    d = [pose_distance(X, P) for P in poses]
+    k = int(np.argmin([a for _, a in d]))
+    return float(d[k][1]), float(d[k][0]), k
+
+
+def path_fit(P_W: np.ndarray, poses: list[np.ndarray], tree, inlier_dist: float, ok: "callable"
+             ) -> tuple[int, float] | None:
+    """(index, inlier fraction) of the pose among ``poses`` (list of (4,4)) that the frame's points P_W (N,3) fit
+    best (fraction within ``inlier_dist`` of the model with KD-tree ``tree``; ties: the mean distance capped at
+    2 cm) among those with ``ok(X)`` (consistent with the table and the frame's own free space); None when none is."""
+    keys = []
+    for X in poses:
+        X_OW = X_inv(X)
+        d, _ = tree.query(P_W @ X_OW[:3, :3].T + X_OW[:3, 3], distance_upper_bound=0.02)
+        d = np.minimum(d, 0.02)
+        keys.append((float(np.mean(d < inlier_dist)), -float(np.mean(d))))
+    for k in sorted(range(len(poses)), key=lambda k: keys[k], reverse=True):
+        if ok(poses[k]):
+            return k, keys[k][0]
+    return None
+
+
+def rest_offsets(X: np.ndarray, X_j: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
+                 cos_min: float = np.cos(np.radians(30.0)), tol: float = 0.005) -> tuple[float, float] | None:
+    """How far the pose X (4,4) is from resting on the face the join X_j (4,4) lays on the table: (angle in degrees
+    between that face's mean normal and −z, median height of its points above the table) at X. The face: the
+    model's points Q_O (M,3) with normals N_O (M,3) within acos(cos_min) of −z and within ``tol`` of the table at
+    X_j (at least 10; else None). A settled object lies on the table: a tracked pose off it by more than the join's
+    own error is not the settled pose."""
+    Nj = N_O @ X_j[:3, :3].T
+    zj = Q_O @ X_j[2, :3] + X_j[2, 3]
+    sel = (Nj[:, 2] < -cos_min) & (np.abs(zj - table_height) < tol)
+    if sel.sum() < 10:
+        return None
+    n = N_O[sel].mean(0) @ X[:3, :3].T
+    n /= np.linalg.norm(n)
+    tilt = float(np.degrees(np.arccos(np.clip(-n[2], -1.0, 1.0))))
+    return tilt, float(np.median(Q_O[sel] @ X[2, :3] + X[2, 3]) - table_height)

@@ -27,7 +27,10 @@ fall, the fall's keyframes dropped and its frames registered backwards (``servic
 Topple landings (``resettle``, on): the pre-fall model tipped about its leading bottom edge onto its leading face
 replaces a track far from it a few frames after the landing, the settled frame a keyframe with all its points
 (``service.tracking.resettle``); after the loop the join moves along the tipping direction until the object's base
-is no longer where the settled frames see the table (``resettle_refine_frames``).
+is no longer where the settled frames see the table (``resettle_refine_frames``); the leading face is made square to
+the base the object stood on (``resettle_square_deg``, off), a join near a track that does not rest on the table is
+adopted too (``resettle_rest_deg``, off), and fall frames off the turn about the leading bottom edge take the path
+pose their points fit (``resettle_path``, off).
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
 normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
 or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
@@ -583,6 +586,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 _report(progress, 0.62 + 0.18 * i / N, f"final registration {i}/{N}")
         if cfg.final_neighbors:
             _final_from_neighbors(session, obs, X, tracked, frac, rmse, model, cfg, icp_kw)
+        if cfg.resettle_path and any(ld.adopted for ld in landings):  # fall frames off the tipping path
+            _resettle_path(session, obs, X, tracked, frac, rmse, model, keyframes, landings, cfg)
         if cfg.regauge_frame0:
             from dataclasses import replace as _replace
 
@@ -771,7 +776,7 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     ``carver`` changed in place), X[i] takes it and frame i becomes a keyframe with all its points; returns (the ICP
     result at the new pose, the new model), else None. Every fall checked is appended to ``landings``."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import face_offsets, find_fall, landing_pose, reach_along
+    from service.tracking.resettle import face_offsets, find_fall, landing_pose, reach_along, rest_offsets
     from service.tracking.settle import Landing
 
     ev = find_fall(X, tracked, i, cfg.settle_fast_deg, cfg.settle_fall_deg, cfg.resettle_tip_deg,
@@ -783,7 +788,8 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     if not pre:
         return None
     M = _model_from(pre, cfg.model_voxel)
-    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height)
+    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height, base_n_O=X[0][:3, :3].T @ [0.0, 0.0, -1.0],
+                            square_deg=cfg.resettle_square_deg)
     Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift,
                       max_yaw_deg=cfg.resettle_max_yaw_deg)
     Xj = reach_along(Xj, M.Q, o.P_W, np.cross(h, [0.0, 0.0, 1.0]), cfg.resettle_max_shift)
@@ -799,7 +805,11 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     # adopted only for an object that lands on a flat face, when the joined pose is at least as consistent with the
     # frame's free space as the tracked one (the pre-fall model placed with it covers no more pixels where the frame
     # sees the table or background); a wrong track need not be shown wrong by that test (its model fits the upper part)
-    adopt = (dt > cfg.resettle_min_dist or da > cfg.resettle_min_deg) and face and s_new <= s_old + cfg.resettle_seen
+    far = dt > cfg.resettle_min_dist or da > cfg.resettle_min_deg
+    if not far and face and cfg.resettle_rest_deg > 0:  # a tracked pose near the join but not resting on the table
+        off = rest_offsets(X[i], Xj, M.Q, M.N, session.table_height)
+        far = off is not None and (off[0] > cfg.resettle_rest_deg or abs(off[1]) > cfg.resettle_rest_dist)
+    adopt = far and face and s_new <= s_old + cfg.resettle_seen
     landings.append(Landing(g0, i, X[i].copy(), Xj.copy(), s_old, s_new, bool(adopt)))
     if not adopt:
         return None
@@ -871,6 +881,71 @@ def _resettle_refine(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
                     carver.update_pose(kf.index, kf.X_WO)
         moved = True
     return _model_from(keyframes, cfg.model_voxel) if moved else None
+
+
+def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
+                   rmse: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], landings: list,
+                   cfg: TrackingConfig) -> list[tuple[int, float, float, bool]]:
+    """The fall's frames of every adopted topple join checked against the tipping motion the physics implies
+    (``resettle.tip_path``): between the last tracked frame a before the fall and the settled frame i the object
+    turns about its leading bottom edge (``resettle.leading_pivot``: the base of frame 0's footprint, placed at X[a],
+    at its extent along the tipping direction, on the table). A frame whose pose is lost, inconsistent with the table
+    or its own free space (``landing.pose_consistent``), or more than ``resettle_path_deg`` / ``resettle_path_dist``
+    from the nearest pose of the path takes the path's pose (every ``resettle_path_step_deg`` of the turn) that its
+    points fit best among the consistent ones (``resettle.path_fit``); it counts as tracked when that pose is a good
+    registration (inlier fraction, residual). Updates X, tracked, frac, rmse in place; returns per checked frame
+    (index, rotation and translation from the path, replaced)."""
+    from service.tracking.geometry import icp_result
+    from service.tracking.landing import pose_consistent
+    from service.tracking.resettle import base_points, leading_pivot, path_distance, path_fit, tip_path
+
+    Q = model.Q[:: max(1, len(model.Q) // 4000)]
+    out = []
+    for ld in landings:
+        if not ld.adopted:
+            continue
+        i = ld.i
+        before = [j for j in range(ld.g0) if tracked[j]]
+        pre = [kf for kf in keyframes if kf.index < ld.g0]
+        if not before or not pre or not tracked[i]:
+            continue
+        a = before[-1]
+        w = so3_log(X[i][:3, :3] @ X[a][:3, :3].T)
+        h = np.array([w[0], w[1], 0.0])
+        if np.linalg.norm(h) < 1e-6:
+            continue
+        f = np.cross(h / np.linalg.norm(h), [0.0, 0.0, 1.0])
+        B = base_points(_model_from(pre, cfg.model_voxel).Q, X[0], session.table_height)
+        if len(B) < 30:
+            continue
+        pivot = leading_pivot(B @ X[a][:3, :3].T + X[a][:3, 3], f, session.table_height)
+        path = tip_path(X[a], X[i], pivot)
+        n = max(2, int(np.ceil(np.degrees(np.linalg.norm(w)) / cfg.resettle_path_step_deg)))
+        poses = [path(k / n) for k in range(n + 1)]
+        for j in range(a + 1, i):
+            o = obs[j]
+            if len(o.P_W) < cfg.min_points:
+                continue
+            view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
+            view.add(j, session.depth(j), np.eye(4))
+
+            def ok(Xc: np.ndarray) -> bool:
+                return pose_consistent(Xc, Q, session.table_height, view, cfg.landing_table_margin,
+                                       cfg.landing_table_frac, cfg.landing_seen_frac)
+
+            d_rot, d_t, _ = path_distance(X[j], poses)
+            if tracked[j] and d_rot <= cfg.resettle_path_deg and d_t <= cfg.resettle_path_dist and ok(X[j]):
+                out.append((j, d_rot, d_t, False))
+                continue
+            fit = path_fit(o.P_W, poses, model.tree, cfg.inlier_dist, ok)
+            if fit is None:
+                out.append((j, d_rot, d_t, False))
+                continue
+            r = icp_result(X_inv(poses[fit[0]]), o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist)
+            X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse
+            tracked[j] = _good(r, cfg)
+            out.append((j, d_rot, d_t, True))
+    return out
 
 
 def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,

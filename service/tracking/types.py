@@ -374,6 +374,22 @@ class TrackingConfig:
     spin_fall_min_deg: float = 45.0
     spin_fall_edge_deg: float = 1.0
     spin_fall_tol_deg: float = 3.0
+    # the fall's frames of an adopted join checked against the tipping motion (tracker._resettle_path,
+    # resettle.tip_path): a frame lost, inconsistent, or more than resettle_path_deg / resettle_path_dist from the
+    # turn about the leading bottom edge between the last pose before the fall and the join takes the path's pose
+    # (every resettle_path_step_deg) its points fit best among those consistent with the table and its free space
+    resettle_path: bool = False  # on: development 820 worst 22.3 -> 3.7 deg; evaluation 710 6.05 -> 5.87 deg, 6.50 -> 8.76 mm
+    resettle_path_deg: float = 5.0
+    resettle_path_dist: float = 0.02
+    resettle_path_step_deg: float = 1.0
+    # the leading face made perpendicular to the base the object stood on at frame 0 when its fitted normal is within
+    # resettle_square_deg of that (resettle.landing_pose; 0: off)
+    resettle_square_deg: float = 0.0  # 5: development 820 join 1.42 -> 0.55 deg, median 1.99 -> 1.26 deg
+    # a join within resettle_min_deg / resettle_min_dist of the tracked pose is adopted too when the tracked pose has
+    # the face the join lays on the table more than resettle_rest_deg from flat or resettle_rest_dist above or below
+    # the table (resettle.rest_offsets: a settled object rests on the table; 0: off)
+    resettle_rest_deg: float = 0.0  # 3: development 840 4.65 -> 1.32 deg median, 861 6.97 -> 1.78 deg (3.67 -> 9.49 mm)
+    resettle_rest_dist: float = 0.005
 
     def __post_init__(self) -> None:
         if self.color_mode not in ("gray", "chroma"):
@@ -462,6 +478,14 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not self.resettle_delay >= 1:
             raise ValueError(f"TrackingConfig.resettle_delay must be >= 1, not {self.resettle_delay!r}")
+        if not 0.0 <= self.resettle_square_deg < 90.0:
+            raise ValueError(f"TrackingConfig.resettle_square_deg must be in [0, 90), not {self.resettle_square_deg!r}")
+        if not (self.resettle_rest_deg >= 0 and self.resettle_rest_dist > 0):
+            raise ValueError(f"TrackingConfig.resettle_rest_deg must be >= 0 and resettle_rest_dist > 0, not "
+                             f"{self.resettle_rest_deg!r}, {self.resettle_rest_dist!r}")
+        for name in ("resettle_path_deg", "resettle_path_dist", "resettle_path_step_deg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"TrackingConfig.{name} must be > 0, not {getattr(self, name)!r}")
         if not (isinstance(self.resettle_refine_frames, int) and self.resettle_refine_frames >= 0):
             raise ValueError(f"TrackingConfig.resettle_refine_frames must be an int >= 0, not {self.resettle_refine_frames!r}")
         if not (isinstance(self.sdf_support_open_dilate, int) and self.sdf_support_open_dilate >= 0):
