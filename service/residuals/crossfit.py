@@ -9,6 +9,10 @@ after, with units pooled over folds (U and the number of held-out blocks cover a
 ``heldout_fraction`` of them: twice one split's at the default 0.5). No held-out error comes from a fit that saw
 its unit.
 
+The one split (``folds`` = 1, ``loop.split_segments``) runs the same loop (``crossfit``) as a single fold: the
+same rules and records, without what only K >= 2 has (the fold values in the reasons, rule 8, the per-fold
+records ``by_mode["folds"]``, ``by_mode["rounds"][i]["folds"]``, ``by_mode["refit"]``, and the final refit).
+
 Greedy rounds: each fold keeps its own current model (its corrected base + the accepted effects with its own
 θ_f); a candidate of round r is fitted on top of that fold's model. Rules 4 (resolution) and 7 (direction) are
 checked on the fold mean θ̄ = mean_f θ_f, rule 5 (bound) on every θ_f (one fold pinned to a bound is compensation);

@@ -39,7 +39,8 @@ over all held-out frames is accepted (a common basis: an effect judged on many f
 friction letting a mistimed push slide, must not outrank the one that explains them); the round repeats
 until none passes or ``max_effects`` are accepted. With ``ResidualConfig.folds`` = K >= 2 the held-out blocks are
 those of K-fold cross-fitting instead of one split (``service/residuals/crossfit.py``): every unit held out once,
-the fits of its fold never see it, the rules applied to the union of the folds.
+the fits of its fold never see it, the rules applied to the union of the folds. Both run one greedy loop,
+``crossfit.crossfit``, the one split as its K = 1 case.
 
 Nuisance refit (learned models): a model learned from the same session carries its own errors
 (geometry a few millimetres to centimetres too large, inertia, CoM), which dominate the rollout error and
