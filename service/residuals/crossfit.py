@@ -9,6 +9,10 @@ after, with units pooled over folds (U and the number of held-out blocks cover a
 ``heldout_fraction`` of them: twice one split's at the default 0.5). No held-out error comes from a fit that saw
 its unit.
 
+The one split (``folds`` = 1, ``loop.split_segments``) runs the same loop (``crossfit``) as a single fold: the
+same rules and records, without what only K >= 2 has (the fold values in the reasons, rule 8, the per-fold
+records ``by_mode["folds"]``, ``by_mode["rounds"][i]["folds"]``, ``by_mode["refit"]``, and the final refit).
+
 Greedy rounds: each fold keeps its own current model (its corrected base + the accepted effects with its own
 θ_f); a candidate of round r is fitted on top of that fold's model. Rules 4 (resolution) and 7 (direction) are
 checked on the fold mean θ̄ = mean_f θ_f, rule 5 (bound) on every θ_f (one fold pinned to a bound is compensation);
@@ -135,17 +139,30 @@ def agreement_rule(ok: bool, why: str, eff, thetas, model: ObjectModel) -> tuple
     return ok, f"{why}; fold agreement: {txt}"
 
 
+def held_out_parts(segs: list, n_traj: int, cfg: ResidualConfig) -> tuple[list[tuple[list, list]], list[np.ndarray]]:
+    """[(train_f, held_f)], [units_f] of the held-out test: with ``folds`` = 1 the one seeded split
+    (``loop.split_segments``) as a single fold, else the K folds of ``fold_segments``."""
+    if cfg.folds == 1:
+        from service.residuals.loop import split_segments
+
+        train, held, units = split_segments(segs, n_traj, cfg)
+        return [(train, held)], [units]
+    return fold_segments(segs, cfg)
+
+
 def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, names: list[str], nuis_names: list[str],
              stats: dict, segs: list, ev, report) -> ResidualOutputs:
-    """The greedy loop of ``loop.run`` with K-fold cross-fitting (module docstring). ``model`` is the input model,
-    ``segs`` every rollout block, ``ev`` the Evaluator."""
+    """The greedy loop of ``loop.run`` over K = ``folds`` folds (module docstring); K = 1 is the one seeded split:
+    its single fold's figures are reported as they are (no fold values, no per-fold records, no final refit).
+    ``model`` is the input model, ``segs`` every rollout block, ``ev`` the Evaluator."""
     from service.residuals.loop import (
         _acts_on, _carried_keys, _decide, _fit, _fit_nuisance, _refine_joint, accept_best, effect_mask, history_entry,
         inadequacy, judged_candidate, later_rules, not_judged, reduce_blocks,
     )
 
     K = cfg.folds
-    parts, units = fold_segments(segs, cfg)
+    kfold = K > 1  # cross-fitted: fold values, per-fold records, final refit on all units
+    parts, units = held_out_parts(segs, len(inputs.trajectories), cfg)
     folds = [_Fold(tr, ho, u) for (tr, ho), u in zip(parts, units)]
     input_model = model
     input_effects = dict(model.effects)
@@ -155,7 +172,8 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
         fd.held_frames0 = ev.frame_scalar(input_model, input_effects, fd.held)
         fd.nuisance = {}
         if nuis_names:
-            report(0.02 + 0.03 * f / K, f"fold {f + 1}/{K}: refitting the model's own uncertain parameters (nuisance)")
+            report(0.02 + 0.03 * f / K, (f"fold {f + 1}/{K}: " if kfold else "")
+                   + "refitting the model's own uncertain parameters (nuisance)")
             tr_n = list(fd.train)
             if len(tr_n) > cfg.max_nuisance_segments:
                 sub = np.random.default_rng(cfg.seed + 99 + 1000 * f).choice(len(tr_n), cfg.max_nuisance_segments, replace=False)
@@ -175,9 +193,11 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                 fd.train = [dataclasses.replace(sg, mode=modes[sg.traj][sg.start:sg.stop]) for sg in fd.train]
                 fd.held = [dataclasses.replace(sg, mode=modes[sg.traj][sg.start:sg.stop]) for sg in fd.held]
         fd.cur_frames = ev.frame_scalar(fd.model, fd.base_effects, fd.held) if fd.nuis_fix else fd.held_frames0
-        fd.nuisance["corrections"] = _flat(fd.nuis_fix)
 
-    def corrections_mean() -> dict[str, float]:
+    def corrections_now() -> dict[str, float]:
+        """The corrections effects are judged against: one split's own, else the fold mean (sorted keys)."""
+        if not kfold:
+            return _flat(folds[0].nuis_fix)
         keys = sorted({k for fd in folds for k in _flat(fd.nuis_fix)})
         out = {}
         for k in keys:
@@ -189,9 +209,13 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
         return np.concatenate([reduce_blocks(fr) for fr in frames_per_fold])
 
     base_err = float(union_all([fd.cur_frames for fd in folds]).mean())
-    nuisance_report: dict = {"names": nuis_names, "heldout_error_after": base_err, "corrections": corrections_mean(),
-                             "folds": [dict(fd.nuisance) for fd in folds]}
-    pinned = sorted({n for fd in folds for n, th in fd.nuis_fix.items() if at_bound(REGISTRY[n], th)})
+    nuisance_report: dict = {"names": nuis_names, **({} if kfold else folds[0].nuisance), "heldout_error_after": base_err,
+                             "corrections": corrections_now()}
+    if kfold:
+        nuisance_report["folds"] = [{**fd.nuisance, "corrections": _flat(fd.nuis_fix)} for fd in folds]
+    pinned = [n for fd in folds for n, th in fd.nuis_fix.items() if at_bound(REGISTRY[n], th)]
+    if kfold:
+        pinned = sorted(set(pinned))
     max_rel = cfg.max_base_error_rel_learned if nuis_names else cfg.max_base_error_rel
     any_fix = any(fd.nuis_fix for fd in folds)
     ref_model = next((fd.model for fd in folds if fd.nuis_fix), input_model)
@@ -210,10 +234,11 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
         round_res = []
         cur = [apply_effects(fd.model, fd.chosen) for fd in folds]
         for ci, name in enumerate(remaining):
-            report((rnd + ci / max(len(remaining), 1)) / max(n_rounds, 1) * 0.9, f"round {rnd + 1}: fitting {name} ({K} folds)")
+            report((rnd + ci / max(len(remaining), 1)) / max(n_rounds, 1) * 0.9,
+                   f"round {rnd + 1}: fitting {name}" + (f" ({K} folds)" if kfold else ""))
             eff = REGISTRY[name]
             sig = float(eff.signature(stats))
-            guess = eff.guess(stats, input_model)
+            guess = eff.guess(stats, input_model if kfold else folds[0].model)  # one split: its corrected model
             tr_e, ho_idx = [], []
             for f, fd in enumerate(folds):
                 t = [sg for sg in fd.train if _acts_on(sg, eff)]
@@ -222,11 +247,13 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                     t = [t[i] for i in sorted(sub)]
                 tr_e.append(t)
                 ho_idx.append(np.array([i for i, sg in enumerate(fd.held) if _acts_on(sg, eff)], int))
-            if min(len(t) for t in tr_e) < 2 or sum(len(h) for h in ho_idx) < 2:
+            n_held = sum(len(h) for h in ho_idx)
+            if min(len(t) for t in tr_e) < 2 or n_held < 2:
+                counts = f"train {[len(t) for t in tr_e]} per fold" if kfold else f"train {len(tr_e[0])}"
                 final[name] = EffectCandidate(
                     name, {}, float("nan"), float("nan"), False,
-                    f"rejected: too few blocks in its modes {eff.modes} (train {[len(t) for t in tr_e]} per fold, "
-                    f"held-out {sum(len(h) for h in ho_idx)})", signature=sig, round=rnd)
+                    f"rejected: too few blocks in its modes {eff.modes} ({counts}, held-out {n_held})",
+                    signature=sig, round=rnd)
                 continue
             per = []  # per fold: dict of figures
             for f, fd in enumerate(folds):
@@ -268,18 +295,19 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                 ok, why, rel = _decide(rel_before, rel_after, u_all, cfg, rng)
                 why = why.replace("held-out error", "(refitted with the corrections) held-out error", 1)
             thetas = np.array([p["theta"] for p in per], float)
-            theta_rep = eff.clip(tuple(float(v) for v in thetas.mean(0)))
-            fold_txt = "fold values " + "; ".join("(" + ", ".join(f"{v:.4g}" for v in th) + ")" for th in thetas)
-            why = f"{why}; {K} folds, {fold_txt}"
+            theta_rep = eff.clip(tuple(float(v) for v in thetas.mean(0)))  # one split: its own θ
+            if kfold:
+                fold_txt = "fold values " + "; ".join("(" + ", ".join(f"{v:.4g}" for v in th) + ")" for th in thetas)
+                why = f"{why}; {K} folds, {fold_txt}"
             bound_f = [f + 1 for f, p in enumerate(per) if at_bound(eff, p["theta"])]
             ok, why = later_rules(ok, why, eff, theta_rep, folds[0].model, all_before, all_after,
                                   [fd.held[i] for f, fd in enumerate(folds) for i in ho_idx[f]], rel_before, rel_after,
-                                  f" in fold(s) {bound_f}" if bound_f else None)
-            ok, why = agreement_rule(ok, why, eff, thetas, folds[0].model)
+                                  (f" in fold(s) {bound_f}" if kfold else "") if bound_f else None)
+            ok, why = agreement_rule(ok, why, eff, thetas, folds[0].model)  # K >= 2 only
             n_tr = sum(len(t) for t in tr_e)
             cand = judged_candidate(name, eff, theta_rep, guess, sig, why, rel_before, rel_after, all_before, all_after,
                                     np.mean([p["train_before"] for p in per]), np.mean([p["e_train"] for p in per]),
-                                    rnd, {"train": n_tr, "heldout": int(len(rel_before)), "folds": K})
+                                    rnd, {"train": n_tr, "heldout": int(len(rel_before)), **({"folds": K} if kfold else {})})
             per_fold = []
             for f, (p, fd) in enumerate(zip(per, folds)):
                 b = reduce_blocks([fd.cur_frames[i] for i in ho_idx[f]], p["ho_masks"])
@@ -290,9 +318,11 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                                  "train_error_before": p["train_before"], "train_error_after": p["e_train"],
                                  "blocks": {"train": len(tr_e[f]), "heldout": int(len(ho_idx[f]))},
                                  "refit_with_corrections": p["refit"]})
+            # ranked by the fall of the error over all held-out frames: a common basis for effects that act
+            # on different frames (an effect on many frames can otherwise outrank the one that explains them)
             round_res.append((ok, float(all_before.mean() - all_after.mean()), cand, per, theta_rep))
             final[name] = cand
-            history.append(history_entry(rnd, cand, ok, folds=per_fold))
+            history.append(history_entry(rnd, cand, ok, **({"folds": per_fold} if kfold else {})))
         best = accept_best(round_res, final)
         if best is None:
             break
@@ -310,7 +340,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
             break
 
     refit_report: dict = {}
-    if chosen_rep:  # the decision is the cross-fitted one; the reported value is one more fit on all units
+    if chosen_rep and kfold:  # the decision is the cross-fitted one; the reported value is one more fit on all units
         report(0.9, f"refitting the accepted effects {list(chosen_rep)} on all units")
         refit, refit_report = final_refit(inputs, cfg, input_model, chosen_rep, nuis_names, stats, segs, ev)
         for name, theta in refit.items():
@@ -337,8 +367,9 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
         overall_a, table_a = ev.by_mode_groups(groups)
     else:
         overall_a, table_a = overall_c, table_c
-    corrections = corrections_mean()
-    nuisance_report["corrections"] = corrections
+    corrections = corrections_now()
+    if kfold:  # (one split: by_mode["nuisance"] keeps the corrections the first round was judged against)
+        nuisance_report["corrections"] = corrections
     held_before0 = union_all([fd.held_frames0 for fd in folds])
     held_after = union_all([fd.cur_frames for fd in folds])
     by_mode = {
@@ -349,17 +380,16 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
         "error_corrected": {**overall_c, "scalar_m": nuisance_report["heldout_error_after"]},
         "nuisance": nuisance_report,
         "segments": {"train_pool": sum(len(fd.train) for fd in folds), "heldout": sum(len(fd.held) for fd in folds),
-                     "folds": K},
-        "folds": [{"train_pool": len(fd.train), "heldout": len(fd.held), "units": int(len(np.unique(fd.units))),
-                   "effects": _flat(fd.chosen), "corrections": _flat(fd.nuis_fix),
-                   "heldout_error_before": float(reduce_blocks(fd.held_frames0).mean()),
-                   "heldout_error_after": float(reduce_blocks(fd.cur_frames).mean())} for fd in folds],
-        "rot_scale_m": ev.rot_scale,
-        "rollouts": ev.calls,
-        "recording_effects": recording,
-        "rounds": history,
-        "refit": refit_report,
+                     **({"folds": K} if kfold else {})},
     }
+    if kfold:
+        by_mode["folds"] = [{"train_pool": len(fd.train), "heldout": len(fd.held), "units": int(len(np.unique(fd.units))),
+                             "effects": _flat(fd.chosen), "corrections": _flat(fd.nuis_fix),
+                             "heldout_error_before": float(reduce_blocks(fd.held_frames0).mean()),
+                             "heldout_error_after": float(reduce_blocks(fd.cur_frames).mean())} for fd in folds]
+    by_mode.update({"rot_scale_m": ev.rot_scale, "rollouts": ev.calls, "recording_effects": recording, "rounds": history})
+    if kfold:
+        by_mode["refit"] = refit_report
     ordered = [final[n] for n in names if n in final]
     report(1.0, "done")
     return ResidualOutputs(

@@ -39,7 +39,8 @@ over all held-out frames is accepted (a common basis: an effect judged on many f
 friction letting a mistimed push slide, must not outrank the one that explains them); the round repeats
 until none passes or ``max_effects`` are accepted. With ``ResidualConfig.folds`` = K >= 2 the held-out blocks are
 those of K-fold cross-fitting instead of one split (``service/residuals/crossfit.py``): every unit held out once,
-the fits of its fold never see it, the rules applied to the union of the folds.
+the fits of its fold never see it, the rules applied to the union of the folds. Both run one greedy loop,
+``crossfit.crossfit``, the one split as its K = 1 case.
 
 Nuisance refit (learned models): a model learned from the same session carries its own errors
 (geometry a few millimetres to centimetres too large, inertia, CoM), which dominate the rollout error and
@@ -71,10 +72,8 @@ from service.residuals.effects import (
     NUISANCE_LEARNED,
     NUISANCE_ONLY,
     REGISTRY,
-    at_bound,
     Effect,
     apply_effects,
-    fold_into_model,
     is_negligible,
     null_params,
 )
@@ -739,7 +738,6 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
     segs = make_segments(inputs, modes, cfg)
     if len(segs) < 2:
         raise InvalidInput("trajectories", f"need at least 2 rollout segments of >= {cfg.min_segment_frames} tracked frames, got {len(segs)}")
-    train, held, units = split_segments(segs, len(inputs.trajectories), cfg)
 
     own_sim = None
     simulate = inputs.simulate
@@ -750,166 +748,10 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
     try:
         rot_scale = cfg.rot_scale_m if cfg.rot_scale_m is not None else object_radius(model)
         ev = Evaluator(simulate, inputs.table_height, rot_scale)
-        if cfg.folds > 1:  # K-fold cross-fitting of the held-out test (service/residuals/crossfit.py)
-            from service.residuals.crossfit import crossfit
+        # the greedy held-out selection: one seeded split (folds = 1) or K-fold cross-fitting, one code path
+        from service.residuals.crossfit import crossfit
 
-            return crossfit(inputs, cfg, model, names, nuis_names, stats, segs, ev, report)
-        rng = np.random.default_rng(cfg.seed + 1)
-
-        base_effects = dict(model.effects)
-        input_model = model
-        held_frames0 = ev.frame_scalar(model, base_effects, held)
-        held_before0 = reduce_blocks(held_frames0)
-        corrections: dict[str, float] = {}
-        nuis_fix: dict[str, tuple] = {}
-        tr_n: list[Segment] = []
-        nuisance_report: dict = {"names": nuis_names}
-        if nuis_names:
-            report(0.02, "refitting the model's own uncertain parameters (nuisance)")
-            tr_n = list(train)
-            if len(tr_n) > cfg.max_nuisance_segments:
-                sub = np.random.default_rng(cfg.seed + 99).choice(len(tr_n), cfg.max_nuisance_segments, replace=False)
-                tr_n = [tr_n[i] for i in sorted(sub)]
-            fix, e0, e1 = _fit_nuisance(nuis_names, model, base_effects, ev, tr_n, cfg)
-            nuis_fix = dict(fix)
-            nuisance_report.update({"train_error_before": e0, "train_error_after": e1, "train_blocks": len(tr_n)})
-            if fix:
-                model, fix_sim = apply_effects(model, fix)
-                base_effects = {**base_effects, **fix_sim}
-                for n, th in fix.items():
-                    corrections.update({k: float(v) for k, v in zip(REGISTRY[n].params, th)})
-                # contact modes of the corrected model (its geometry decides robot contact and table gaps)
-                th_off = float(fix_sim.get("table_offset", 0.0))
-                modes = [
-                    classify(model, tr, inputs.table_height + th_off, inputs.robot[k] if inputs.robot is not None else None, cfg)
-                    for k, tr in enumerate(inputs.trajectories)
-                ]
-                train = [dataclasses.replace(sg, mode=modes[sg.traj][sg.start:sg.stop]) for sg in train]
-                held = [dataclasses.replace(sg, mode=modes[sg.traj][sg.start:sg.stop]) for sg in held]
-        held_cur_frames = ev.frame_scalar(model, base_effects, held) if corrections else held_frames0
-        nuisance_report["heldout_error_after"] = float(reduce_blocks(held_cur_frames).mean())
-        nuisance_report["corrections"] = dict(corrections)
-        chosen: dict[str, tuple] = {}
-        final: dict[str, EffectCandidate] = {}
-        history: list[dict] = []
-        remaining = list(names)
-        n_rounds = min(cfg.max_effects, len(names))
-        base_err = float(reduce_blocks(held_cur_frames).mean())
-        pinned = [n for n, th in nuis_fix.items() if at_bound(REGISTRY[n], th)]
-        max_rel = cfg.max_base_error_rel_learned if nuis_names else cfg.max_base_error_rel
-        why_not = inadequacy(base_err, model, pinned, bool(corrections), max_rel)
-        nuisance_report["model_adequate"] = why_not is None
-        if why_not is not None:
-            n_rounds = 0
-            final.update(not_judged(names, why_not))
-        for rnd in range(n_rounds):
-            round_res = []
-            cur_model, cur_sim = apply_effects(model, chosen)
-            for ci, name in enumerate(remaining):
-                report((rnd + ci / max(len(remaining), 1)) / max(n_rounds, 1) * 0.9, f"round {rnd + 1}: fitting {name}")
-                eff = REGISTRY[name]
-                sig = float(eff.signature(stats))
-                guess = eff.guess(stats, model)
-                tr_e = [sg for sg in train if _acts_on(sg, eff)]
-                if len(tr_e) > cfg.max_train_segments:
-                    sub = np.random.default_rng(cfg.seed + 7 * rnd + ci).choice(len(tr_e), cfg.max_train_segments, replace=False)
-                    tr_e = [tr_e[i] for i in sorted(sub)]
-                ho_idx = np.array([i for i, sg in enumerate(held) if _acts_on(sg, eff)], int)
-                if len(tr_e) < 2 or len(ho_idx) < 2:
-                    final[name] = EffectCandidate(
-                        name, {}, float("nan"), float("nan"), False,
-                        f"rejected: too few blocks in its modes {eff.modes} (train {len(tr_e)}, held-out {len(ho_idx)})",
-                        signature=sig, round=rnd,
-                    )
-                    continue
-                tr_masks = [effect_mask(sg, eff) for sg in tr_e]
-                ho_masks = [effect_mask(held[i], eff) for i in ho_idx]
-                train_before = float(ev.errors(cur_model, {**base_effects, **cur_sim}, tr_e, tr_masks).mean())
-                theta, e_train = _fit(eff, guess, model, base_effects, chosen, ev, tr_e, cfg)
-                m_after, s_after = apply_effects(model, {**chosen, name: theta})
-                after_frames = ev.frame_scalar(m_after, {**base_effects, **s_after}, held)
-                rel_before = reduce_blocks([held_cur_frames[i] for i in ho_idx], ho_masks)
-                rel_after = reduce_blocks([after_frames[i] for i in ho_idx], ho_masks)
-                all_before, all_after = reduce_blocks(held_cur_frames), reduce_blocks(after_frames)
-                ok, why, rel = _decide(rel_before, rel_after, units[ho_idx], cfg, rng)
-                cand_nuis = nuis_fix
-                helps = e_train < (1.0 - 0.5 * cfg.min_rel_improvement) * train_before
-                if nuis_fix and (ok or (helps and not is_negligible(eff, theta, model))):
-                    # joint refit with the corrections, then judged again against the corrected base
-                    cand_nuis, theta = _refine_joint(nuis_fix, eff, theta, chosen, input_model, dict(input_model.effects),
-                                                     ev, tr_n, cfg)
-                    m_after, s_after = apply_effects(input_model, {**cand_nuis, **chosen, name: theta})
-                    after_frames = ev.frame_scalar(m_after, {**dict(input_model.effects), **s_after}, held)
-                    rel_after = reduce_blocks([after_frames[i] for i in ho_idx], ho_masks)
-                    all_after = reduce_blocks(after_frames)
-                    e_train = float(ev.errors(m_after, {**dict(input_model.effects), **s_after}, tr_e, tr_masks).mean())
-                    ok, why, rel = _decide(rel_before, rel_after, units[ho_idx], cfg, rng)
-                    why = why.replace("held-out error", "(refitted with the corrections) held-out error", 1)
-                ok, why = later_rules(ok, why, eff, theta, model, all_before, all_after, [held[i] for i in ho_idx],
-                                      rel_before, rel_after, "" if at_bound(eff, theta) else None)
-                cand = judged_candidate(name, eff, theta, guess, sig, why, rel_before, rel_after, all_before, all_after,
-                                        train_before, e_train, rnd, {"train": len(tr_e), "heldout": int(len(ho_idx))})
-                # ranked by the fall of the error over all held-out frames: a common basis for effects that act
-                # on different frames (an effect on many frames can otherwise outrank the one that explains them)
-                round_res.append((ok, float(all_before.mean() - all_after.mean()), cand, theta, after_frames, cand_nuis))
-                final[name] = cand
-                history.append(history_entry(rnd, cand, ok))
-            best = accept_best(round_res, final)
-            if best is None:
-                break
-            ok, gain, cand, theta, after_frames, cand_nuis = best
-            chosen[cand.effect] = theta
-            remaining.remove(cand.effect)
-            held_cur_frames = after_frames
-            if cand_nuis is not nuis_fix:  # the corrections refitted together with the accepted effect
-                nuis_fix = cand_nuis
-                model, fix_sim = apply_effects(input_model, nuis_fix)
-                base_effects = {**dict(input_model.effects), **fix_sim}
-                corrections = {k: float(v) for n, th in nuis_fix.items() for k, v in zip(REGISTRY[n].params, th)}
-            if not remaining:
-                break
-
-        report(0.92, "errors by mode before/after")
-        sim_model, sim_eff = apply_effects(model, chosen)  # corrected base + effects (what was judged)
-        new_model, new_sim = apply_effects(input_model, chosen)
-        accepted_effects: dict[str, float] = {}
-        for name, theta in chosen.items():
-            accepted_effects.update({k: float(v) for k, v in zip(REGISTRY[name].params, theta)})
-        out_model, recording = fold_into_model(new_model, accepted_effects, _carried_keys())
-        overall_b, table_b = ev.by_mode(input_model, dict(input_model.effects), held)
-        overall_c, table_c = ev.by_mode(model, base_effects, held) if corrections else (overall_b, table_b)
-        overall_a, table_a = ev.by_mode(sim_model, {**base_effects, **sim_eff}, held) if chosen else (overall_c, table_c)
-        by_mode = {
-            "residual": stats,
-            "rollout_before": table_b,
-            "rollout_after": table_a,
-            "rollout_corrected": table_c,
-            "error_corrected": {**overall_c, "scalar_m": nuisance_report["heldout_error_after"]},
-            "nuisance": nuisance_report,
-            "segments": {"train_pool": len(train), "heldout": len(held)},
-            "rot_scale_m": rot_scale,
-            "rollouts": ev.calls,
-            "recording_effects": recording,
-            "rounds": history,
-        }
-        series = {
-            "heldout_error_before": held_before0,
-            "heldout_error_after": reduce_blocks(held_cur_frames),
-        }
-        ordered = [final[n] for n in names if n in final]
-        report(1.0, "done")
-        return ResidualOutputs(
-            candidates=tuple(ordered),
-            accepted=tuple(chosen),
-            effects=accepted_effects,
-            error_before={**overall_b, "scalar_m": float(held_before0.mean())},
-            error_after={**overall_a, "scalar_m": float(reduce_blocks(held_cur_frames).mean())},
-            by_mode=by_mode,
-            model=out_model,
-            series=series,
-            recording_effects=recording,
-            corrections=corrections,
-        )
+        return crossfit(inputs, cfg, model, names, nuis_names, stats, segs, ev, report)
     finally:
         if own_sim is not None:
             own_sim.close()
