@@ -24,7 +24,9 @@ hidden effect each, and a model carrying learned-model errors that the nuisance 
 
 Strike: synthetic-lab strike sessions (impulsive pushes, the object slides free), one hidden effect each, the
 settings of tests/residuals/test_strike_sessions.py on seeds the tests do not use (per effect: truth, fitted,
-held-out error before/after, decision).
+held-out error before/after, decision). With ``--learned-model`` (model with learned-model errors and the nuisance
+refit) the CoM offset is a correction, not a candidate: its case is right when nothing is accepted, and the
+corrected CoM is printed against the truth.
 """
 
 from __future__ import annotations
