@@ -4,7 +4,7 @@ A topple ends with 1–3 frames turning 14–16° each while the occluder may hi
 loop can lose the object there and carry on at a consistent wrong pose (development milk_carton topple 820:
 107 mm / 9° off from the landing to the end). A re-localisation of the settled object against the pre-fall model
 cannot fix it: the pre-fall model holds mostly the object's upper part, the settled view mostly surface never seen
-before (``service.tracking.settle``, docs/tracking.md), and the lab's six-tile print gives no ORB match between
+before (the former ``settle`` option, docs/tracking.md), and the lab's six-tile print gives no ORB match between
 the two views either (no side is seen both before and after the fall in those sessions). What they do share is the
 motion between them: a topple is a rotation about the bottom edge on the table in the direction it started to tip,
 ending when the side face that led lies on the table.
@@ -45,9 +45,15 @@ What is left: the join is 0.5–2° off (a yaw the table does not fix) and up to
 along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
 manipulation"); plane-based registration (Pathak et al. 2010, "Fast registration based on noisy planes").
+Every fall checked is recorded as a ``Landing``. The table and the frame's free space test a pose
+(``pose_consistent``): a pose whose model Q_O (M,3) lies through the table (heights z = (X_WO Q_O)_z below the table
+height h − margin) or covers pixels where the frame sees the table or background behind it is inconsistent (a box
+slid along its own face keeps every frame point on the model, but its model then lies where the frame sees the table).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -365,3 +371,41 @@ def rest_offsets(X: np.ndarray, X_j: np.ndarray, Q_O: np.ndarray, N_O: np.ndarra
     n /= np.linalg.norm(n)
     tilt = float(np.degrees(np.arccos(np.clip(-n[2], -1.0, 1.0))))
     return tilt, float(np.median(Q_O[sel] @ X[2, :3] + X[2, 3]) - table_height)
+
+
+@dataclass
+class Landing:
+    g0: int  # first frame of the fast stretch (its poses are suspect)
+    i: int  # the settled frame that was re-localised
+    X_old: np.ndarray  # (4,4) its tracked pose before
+    X_new: np.ndarray  # (4,4) the re-localised pose
+    score_old: float
+    score_new: float
+    adopted: bool
+
+
+def heights(X_WO: np.ndarray, Q_O: np.ndarray) -> np.ndarray:
+    return Q_O @ X_WO[2, :3] + X_WO[2, 3]
+
+
+def below_table_frac(X_WO: np.ndarray, Q_O: np.ndarray, table_height: float, margin: float) -> float:
+    """Fraction of the model points (M,3) that lie more than ``margin`` below the table plane with pose X_WO."""
+    if len(Q_O) == 0:
+        return 0.0
+    return float(np.mean(heights(X_WO, Q_O) < table_height - margin))
+
+
+def pose_consistent(X_WO: np.ndarray, Q_O: np.ndarray, table_height: float, view, table_margin: float,
+                    table_frac: float, seen_frac: float) -> bool:
+    """False when the model Q_O (M,3) placed with X_WO has more than ``table_frac`` of its points more than
+    ``table_margin`` below the table, or (``view``: a ``FreeSpace`` holding the current frame's depth with the
+    identity pose, may be None) more than ``seen_frac`` of them where the current frame sees through them (its depth
+    reading lies behind the point: the camera sees the table or background there). The second test is what tells a
+    box slid along its own face — every frame point still on the model — from the right pose: the slid model
+    covers pixels where the frame sees the table."""
+    if below_table_frac(X_WO, Q_O, table_height, table_margin) > table_frac:
+        return False
+    if view is not None and len(Q_O):
+        if float(np.mean(view.seen_through(Q_O @ X_WO[:3, :3].T + X_WO[:3, 3]))) > seen_frac:
+            return False
+    return True

@@ -19,11 +19,7 @@ refined model, and (d) frame 0 registered to that model as well, the body frame 
 so that X_WO(0) keeps its definition (a mismatch between frame 0 and the merged model would otherwise be an
 offset common to every other frame); with ``gauge_frames`` the registration of frame 0 is replaced by the robust
 mean over frame 0 and the frames at rest before the robot reaches the object (``service.tracking.gauge``).
-Toppling landings (options, off): ``landing`` adds starts from the last step's screw continued until the model
-meets the table and rejects poses through the table or where the frame sees through the model
-(``service.tracking.landing``); ``final_neighbors`` re-registers fast frames from their neighbours' final poses.
-Fast-motion gaps (``settle``, off): a still run after a fast fall is re-localised against the model from before the
-fall, the fall's keyframes dropped and its frames registered backwards (``service.tracking.settle``).
+Toppling landings (option, off): ``final_neighbors`` re-registers fast frames from their neighbours' final poses.
 Topple landings (``resettle``, on): the pre-fall model tipped about its leading bottom edge onto its leading face
 replaces a track far from it a few frames after the landing, the settled frame a keyframe with all its points
 (``service.tracking.resettle``); after the loop the join moves along the tipping direction until the object's base
@@ -337,7 +333,7 @@ class TrackResult:
     kf_log: list[dict] = field(default_factory=list)  # per keyframe candidate: index, far, new_frac, added, accepted
     n_feat: np.ndarray | None = None  # (N,2) feature correspondences used per frame: tracking, final pass
     spin: "SpinResult | None" = None  # spin closure of a body of revolution (cfg.spin_closure)
-    landings: list = field(default_factory=list)  # settle.Landing of every fast gap checked (cfg.settle) and of
+    landings: list = field(default_factory=list)  # resettle.Landing of
     # every topple landing joined (cfg.resettle: X_new the join; score_old / score_new the fractions of the pre-fall
     # model the frame sees through at the tracked / joined pose)
 
@@ -415,7 +411,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     sil_Q = _sil_model(model, keyframes, rims, cfg) if sil_st else None
     n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
     frng = np.random.default_rng(cfg.seed + 1)  # RANSACs of the keyframe features (own stream: rng unchanged)
-    landings: list = []  # settle.Landing of every fast gap checked (cfg.settle)
+    landings: list = []  # resettle.Landing of every topple landing checked (cfg.resettle)
     for i in range(1, N):
         o = observe(session, i, cfg, rng)
         obs.append(o)
@@ -438,14 +434,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 cands.append(Xc)
                 feat_W, feat_O = fW[inl], fO[inl]
                 n_feat[i, 0] = len(feat_W)
-        view = None
-        if cfg.landing:
-            if len(last) >= 2 and last[-2] == a - 1:
-                cands += _landing_starts(X[last[-2]], X[a], i - a, model, session.table_height)
-            view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
-            view.add(i, session.depth(i), np.eye(4))  # the frame's own depth, points given in W
         best = None
-        best_ok = True
         for Xc in cands:
             if best is not None and _good(best, cfg):
                 dt, da = pose_distance(best.X_WO, Xc)
@@ -453,22 +442,15 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                     continue  # this start converges to the pose already found
             r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw,
                     **{**deg_kw, **col_kw("track", o.C, model)})
-            if cfg.landing:
-                best, best_ok = _better_consistent(r, best, best_ok, model, session, view, cfg)
-            elif _better(r, best):
+            if _better(r, best):
                 best = r
-        if a != i - 1 and not (_good(best, cfg) and best_ok):
+        if a != i - 1 and not _good(best, cfg):
             # re-localisation: wider search from the last tracked pose and every keyframe pose
             for kf in keyframes[::-1][:8]:
                 r = icp(o.P_W, kf.X_WO, model.tree, model.Q, model.N, N_src=o.N_W,
                         **{**icp_kw, "dist0": 2 * cfg.icp_dist0})
-                if cfg.landing:
-                    best, best_ok = _better_consistent(r, best, best_ok, model, session, view, cfg)
-                elif _better(r, best):
+                if _better(r, best):
                     best = r
-        if not best_ok:  # every start gave a pose through the table or in space seen empty
-            X[i] = X[a]
-            continue
         if "track" in sil_st and _good(best, cfg):
             best = _sil_refine(session, i, o.P_W, best, model, sil_Q, cfg)
         X[i] = best.X_WO
@@ -478,14 +460,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             continue
         tracked[i] = True
         last.append(i)
-        if cfg.settle:  # a still object after a fast gap: re-localised against the model from before the fall
-            rel = _settle_check(session, i, o, X, tracked, keyframes, carver, landings, cfg, icp_kw)
-            if rel is not None:
-                best, model = rel
-                frac[i], rmse[i] = best.inlier_frac, best.rmse
-                last[:] = [i]
-                if sil_st:
-                    sil_Q = _sil_model(model, keyframes, rims, cfg)
         if cfg.resettle:  # after a topple's landing: the pre-fall model tipped onto its leading face
             rel = _resettle_check(session, i, o, X, tracked, keyframes, carver, landings, cfg)
             if rel is not None:
@@ -605,29 +579,14 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings)
 
 
-def _landing_starts(X_b: np.ndarray, X_a: np.ndarray, gap: int, model: ObjectModel, table_height: float
-                    ) -> list[np.ndarray]:
-    """Extra starts when the motion of the tracked step b -> a (consecutive frames) continues for ``gap`` frames
-    (``service.tracking.landing``): after a loss, the screw continued over the gap (the constant-velocity
-    prediction of every frame in between); and the pose at which that screw first brings the model to the table,
-    when it does so within the gap (a topple's landing)."""
-    from service.tracking.landing import land_on_table, screw_path
-
-    out = screw_path(X_b, X_a, range(1, gap + 1)) if gap > 1 else []
-    Xl = land_on_table(X_b, X_a, model.Q, table_height, k_max=float(gap))
-    if Xl is not None:
-        out.append(Xl)
-    return out
-
-
 def _final_from_neighbors(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
                           rmse: np.ndarray, model: ObjectModel, cfg: TrackingConfig, icp_kw: dict) -> None:
     """Second start for the final registration of frames whose neighbours' final poses differ from theirs by more
     than ``final_nb_deg`` / ``final_nb_dist`` (fast turns: a landing frame whose tracking-loop start lagged): the
     registration from the neighbour's pose replaces the frame's when it fits better (inlier fraction, residual) and
-    is consistent with the table and the frame's own free space (``landing.pose_consistent``). Neighbour poses
+    is consistent with the table and the frame's own free space (``resettle.pose_consistent``). Neighbour poses
     are those of the final pass (not updated during this sweep). Updates X, tracked, frac, rmse in place."""
-    from service.tracking.landing import pose_consistent
+    from service.tracking.resettle import pose_consistent
 
     X0 = X.copy()
     Q = model.Q[:: max(1, len(model.Q) // 4000)]
@@ -658,114 +617,6 @@ def _final_from_neighbors(session, obs: list[FrameObs], X: np.ndarray, tracked: 
         tracked[i] = _good(cur, cfg)
 
 
-def _better_consistent(r: IcpResult, best: IcpResult | None, best_ok: bool, model: ObjectModel, session,
-                       view: "FreeSpace | None", cfg: TrackingConfig) -> tuple[IcpResult, bool]:
-    """The better of r and best where a pose consistent with the table and the frame's free space
-    (``landing.pose_consistent``) beats any inconsistent one; returns (best, whether it is consistent)."""
-    from service.tracking.landing import pose_consistent
-
-    Q = model.Q[:: max(1, len(model.Q) // 4000)]
-    ok = pose_consistent(r.X_WO, Q, session.table_height, view, cfg.landing_table_margin, cfg.landing_table_frac,
-                         cfg.landing_seen_frac)
-    if best is None or (ok and not best_ok) or (ok == best_ok and _better(r, best)):
-        return r, ok
-    return best, best_ok
-
-
-def _settle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.ndarray, keyframes: list[Keyframe],
-                  carver: "FreeSpace | None", landings: list, cfg: TrackingConfig, icp_kw: dict
-                  ) -> tuple[IcpResult, ObjectModel] | None:
-    """Frame i (just tracked) ends a still run after a fast gap (``settle.find_gap``): re-localise it against the
-    model of the keyframes taken before the gap (``service.tracking.settle``). When the re-localised pose replaces
-    the tracked one, the keyframes from the gap on are dropped (``keyframes`` and ``carver`` changed in place), X[i]
-    is set and (the ICP result at the new pose, the model of the remaining keyframes) is returned; else None.
-    Every gap checked is appended to ``landings``."""
-    from service.tracking.geometry import icp_result
-    from service.tracking.landing import land_on_table, pose_consistent
-    from service.tracking.settle import (Landing, feature_agreement, find_gap, resting_pose, resting_rotations,
-                                         score, slide_search)
-
-    g0 = find_gap(X, tracked, i, cfg.settle_still_frames, cfg.settle_still_deg, cfg.settle_still_dist,
-                  cfg.settle_fast_deg, cfg.settle_fall_deg, cfg.settle_window,
-                  after=max([ld.i for ld in landings], default=0))
-    if g0 is None:
-        return None
-    pre = [kf for kf in keyframes if kf.index < g0]
-    if not pre:
-        return None
-    view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
-    view.add(i, session.depth(i), np.eye(4))
-    # only a track shown wrong is replaced: the model of all keyframes so far, placed with the tracked pose, covers
-    # pixels where the frame sees the table or background (or lies through the table). Against the pre-fall model
-    # alone the right pose can score worst: the settled view may show mostly surface never seen before the fall
-    cur = _model_from(keyframes, cfg.model_voxel)
-    if pose_consistent(X[i], cur.Q[:: max(1, len(cur.Q) // 4000)], session.table_height, view,
-                       cfg.landing_table_margin, cfg.landing_table_frac, cfg.landing_seen_frac):
-        landings.append(Landing(g0, i, X[i].copy(), None, np.nan, np.nan, False))
-        return None
-    M = _model_from(pre, cfg.model_voxel)
-    Q = M.Q[:: max(1, len(M.Q) // 4000)]
-
-    def consistent(Xc: np.ndarray) -> bool:
-        return pose_consistent(Xc, Q, session.table_height, view, cfg.landing_table_margin, cfg.landing_table_frac,
-                               cfg.landing_seen_frac)
-
-    A, B = [], []
-    for kf in pre:
-        m = _match(o.desc, kf.desc)
-        if len(m):
-            A.append(o.kp_W[m[:, 0]])
-            B.append(kf.kp_O[m[:, 1]])
-    fW = np.concatenate(A) if A else np.zeros((0, 3))
-    fO = np.concatenate(B) if B else np.zeros((0, 3))
-
-    Ps = o.P_W[:: max(1, len(o.P_W) // 300)]
-    Qs = M.Q[:: max(1, len(M.Q) // 1000)]
-
-    def sc(r: IcpResult) -> float:
-        if not (_good(r, cfg) and consistent(r.X_WO)):
-            return -np.inf
-        seen = float(np.mean(view.seen_through(Qs @ r.X_WO[:3, :3].T + r.X_WO[:3, 3])))
-        return score(r.inlier_frac, r.rmse, feature_agreement(fW, fO, r.X_WO), cfg.settle_w_feat, seen)
-
-    r_old = icp_result(X_inv(X[i]), o.P_W, M.tree, M.Q, M.N, cfg.inlier_dist)
-    s_old = sc(r_old)
-    starts = [X[i]]
-    if g0 >= 2 and tracked[g0 - 1] and tracked[g0 - 2]:
-        Xl = land_on_table(X[g0 - 2], X[g0 - 1], M.Q, session.table_height, k_max=float(i - g0 + 6))
-        if Xl is not None:
-            starts.append(Xl)
-    rest = [resting_pose(R, M.Q, o.P_W, session.table_height) for R in resting_rotations(M.Q, cfg.settle_yaw_deg)]
-    if rest:
-        placed = [slide_search(Ps, Xr, M.tree, Qs, view, half=0.16, step=0.04, fine=0.0) for Xr in rest]
-        starts += [placed[k][0] for k in np.argsort([-p[1] for p in placed])[:cfg.settle_icp]]
-    best, s_best = None, -np.inf
-    kw = {**icp_kw, "dist0": 0.03, "iters": 2 * cfg.icp_iters}
-    for Xs in starts:
-        r = icp(o.P_W, Xs, M.tree, M.Q, M.N, N_src=o.N_W, **kw)
-        Xsl, _ = slide_search(Ps, r.X_WO, M.tree, Qs, view)
-        if pose_distance(Xsl, r.X_WO)[0] > 0.004:
-            r = icp(o.P_W, Xsl, M.tree, M.Q, M.N, N_src=o.N_W, **kw)
-        s_r = sc(r)
-        if s_r > s_best:
-            best, s_best = r, s_r
-    dt, da = pose_distance(X[i], best.X_WO) if best is not None else (0.0, 0.0)
-    adopt = best is not None and (dt > cfg.settle_min_dist or da > cfg.settle_min_deg) \
-        and s_best > s_old + cfg.settle_margin and best.inlier_frac >= cfg.settle_min_frac
-    landings.append(Landing(g0, i, X[i].copy(), None if best is None else best.X_WO.copy(), float(s_old),
-                            float(s_best), bool(adopt)))
-    if not adopt:
-        return None
-    keep = [kf for kf in keyframes if kf.index < g0]
-    keyframes[:] = keep
-    if carver is not None:
-        idx = [k for k, j in enumerate(carver.indices) if j < g0]
-        carver.views = [carver.views[k] for k in idx]
-        carver.indices = [carver.indices[k] for k in idx]
-    X[i] = best.X_WO
-    return best, M
-
-
 def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.ndarray, keyframes: list[Keyframe],
                     carver: "FreeSpace | None", landings: list, cfg: TrackingConfig
                     ) -> tuple[IcpResult, ObjectModel] | None:
@@ -776,8 +627,7 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     ``carver`` changed in place), X[i] takes it and frame i becomes a keyframe with all its points; returns (the ICP
     result at the new pose, the new model), else None. Every fall checked is appended to ``landings``."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import face_offsets, find_fall, landing_pose, reach_along, rest_offsets
-    from service.tracking.settle import Landing
+    from service.tracking.resettle import Landing, face_offsets, find_fall, landing_pose, reach_along, rest_offsets
 
     ev = find_fall(X, tracked, i, cfg.settle_fast_deg, cfg.settle_fall_deg, cfg.resettle_tip_deg,
                    cfg.resettle_min_tip_deg, cfg.resettle_delay, after=max([ld.i for ld in landings], default=0))
@@ -890,13 +740,13 @@ def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
     (``resettle.tip_path``): between the last tracked frame a before the fall and the settled frame i the object
     turns about its leading bottom edge (``resettle.leading_pivot``: the base of frame 0's footprint, placed at X[a],
     at its extent along the tipping direction, on the table). A frame whose pose is lost, inconsistent with the table
-    or its own free space (``landing.pose_consistent``), or more than ``resettle_path_deg`` / ``resettle_path_dist``
+    or its own free space (``resettle.pose_consistent``), or more than ``resettle_path_deg`` / ``resettle_path_dist``
     from the nearest pose of the path takes the path's pose (every ``resettle_path_step_deg`` of the turn) that its
     points fit best among the consistent ones (``resettle.path_fit``); it counts as tracked when that pose is a good
     registration (inlier fraction, residual). Updates X, tracked, frac, rmse in place; returns per checked frame
     (index, rotation and translation from the path, replaced)."""
     from service.tracking.geometry import icp_result
-    from service.tracking.landing import pose_consistent
+    from service.tracking.resettle import pose_consistent
     from service.tracking.resettle import base_points, leading_pivot, path_distance, path_fit, tip_path
 
     Q = model.Q[:: max(1, len(model.Q) // 4000)]
@@ -953,7 +803,7 @@ def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
     """The frames g0…i−1 of every adopted landing registered backwards from the settled frame i against ``model``
     (starts: the next frame's pose and the backward constant-velocity prediction), and from their forward pose; the
     better consistent fit wins, a frame with none is lost. Updates X, tracked, frac, rmse in place."""
-    from service.tracking.landing import pose_consistent
+    from service.tracking.resettle import pose_consistent
 
     Q = model.Q[:: max(1, len(model.Q) // 4000)]
     for ld in landings:

@@ -189,11 +189,10 @@ class TrackingConfig:
     gauge_max_dist: float = 0.01
     gauge_ee_margin: float = 0.02
     gauge_loo: bool = False
-    # toppling landings (service.tracking.landing): extra starts from the last step's screw continued over a gap
-    # and stopped where the model meets the table; a pose whose model lies more than landing_table_margin below the
-    # table (over landing_table_frac of its points) or covers pixels where the frame sees through it loses to any
-    # consistent one, and a frame with no consistent pose is lost
-    landing: bool = False
+    # the table and the frame's free space as a test of a pose (resettle.pose_consistent; the fall's frames registered
+    # backwards from an adopted join, final_neighbors, resettle_path): a pose whose model lies more than
+    # landing_table_margin below the table (over landing_table_frac of its points) or covers pixels where the frame
+    # sees through it is inconsistent
     landing_table_margin: float = 0.01
     landing_table_frac: float = 0.02
     landing_seen_frac: float = 0.05  # ... or more of its points where the frame's depth reading lies behind them
@@ -233,31 +232,10 @@ class TrackingConfig:
     sil_max_step: float = 0.006  # a refined pose farther than this (m) or
     sil_max_step_deg: float = 2.0  # turned more than this from the ICP pose, or whose inlier fraction fell by more
     sil_max_inlier_loss: float = 0.03  # than this, is not taken (none 511 without these bounds: a 90° flip)
-    # fast-motion gaps (service.tracking.settle): when settle_still_frames still tracked frames follow, within
-    # settle_window frames, a step faster than settle_fast_deg per frame (a topple's landing), the last of them is
-    # re-localised against the model of the keyframes before the fall (steps > settle_fall_deg per frame): starts on
-    # the pre-fall model's resting faces (yaw steps settle_yaw_deg, the settle_icp best screened refined by ICP), the
-    # landing screw and the tracked pose; a consistent pose settle_min_deg / settle_min_dist away from the tracked one
-    # that scores settle_margin more replaces it, the keyframes of the fall are dropped, and the fall's frames are
-    # registered backwards from it after the loop (the better consistent fit of forward and backward per frame).
-    # Only a track shown wrong (the model placed with it covers pixels the frame sees past) is questioned. Off: on the
-    # development topples the settled view shares almost no surface with the pre-fall model, so the re-localisation
-    # finds shape-symmetric flips, not the true pose (docs/tracking.md, "Worst frames"); identical poses where nothing
-    # is replaced (820, 830, 840, oat 830, baking_box 820, 710)
-    settle: bool = False
-    settle_still_frames: int = 3
-    settle_still_deg: float = 1.0
-    settle_still_dist: float = 0.003
+    # a topple's fall (resettle.find_fall): its last fast step turns more than settle_fast_deg per frame, the fall
+    # starts where the steps turn more than settle_fall_deg per frame
     settle_fast_deg: float = 8.0
     settle_fall_deg: float = 2.0
-    settle_window: int = 8
-    settle_yaw_deg: float = 15.0
-    settle_icp: int = 12
-    settle_w_feat: float = 0.1  # weight of the ORB matches (to the pre-fall keyframes) agreeing with a pose
-    settle_min_deg: float = 3.0
-    settle_min_dist: float = 0.01
-    settle_margin: float = 0.05
-    settle_min_frac: float = 0.8  # ... and whose inlier fraction against the pre-fall model is at least this
     # safeguards of the silhouette term (w_sil > 0; 0: not used; all off, docs/tracking.md "Why the free-space term
     # hurts"): it acts only along the directions the depth leaves weak (eigenvalues of the point-to-plane Hessian,
     # rotation scaled by sil_weak_len, below sil_weak_ratio x the largest; none: the ICP pose is kept), and only in
@@ -440,15 +418,9 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not self.sdf_contradict_views >= 1:
             raise ValueError(f"TrackingConfig.sdf_contradict_views must be >= 1, not {self.sdf_contradict_views!r}")
-        for name in ("settle_still_deg", "settle_still_dist", "settle_fast_deg", "settle_fall_deg", "settle_window",
-                     "settle_w_feat", "settle_min_deg", "settle_min_dist", "settle_margin", "settle_min_frac"):
+        for name in ("settle_fast_deg", "settle_fall_deg"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
-        for name in ("settle_still_frames", "settle_icp"):
-            if not getattr(self, name) >= 1:
-                raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
-        if not 0 < self.settle_yaw_deg <= 180:
-            raise ValueError(f"TrackingConfig.settle_yaw_deg must be in (0, 180], not {self.settle_yaw_deg!r}")
         for name in ("sil_weak_ratio", "sil_gate_frac", "sil_gate_margin", "sil_front_smooth_px",
                      "sil_model_smooth"):
             if not getattr(self, name) >= 0:

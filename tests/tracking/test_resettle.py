@@ -3,8 +3,8 @@
 import numpy as np
 
 from service.tracking.resettle import (base_points, base_shift, face_offsets, find_fall, landing_pose, leading_pivot,
-                                      path_distance, path_fit, reach_along, rest_offsets, tip_path)
-from service.transforms import X_inv, make_X, pose_distance, so3_exp
+                                      path_distance, path_fit, pose_consistent, reach_along, rest_offsets, tip_path)
+from service.transforms import X_inv, make_X, pose_distance, se3_exp, se3_log, so3_exp
 
 SIZE = np.array([0.07, 0.07, 0.185])  # a milk carton standing, its centre at the origin of O
 
@@ -206,3 +206,33 @@ def test_rest_offsets_of_a_pose_not_lying_on_the_face():
     off = make_X(so3_exp(np.array([0.0, np.radians(4.0), 0.0])) @ truth[:3, :3], truth[:3, 3] + [0.0, 0.0, 0.009])
     tilt, height = rest_offsets(off, truth, Q, Nq, table)
     assert abs(tilt - 4.0) < 0.1 and abs(height - 0.009) < 0.002
+
+
+def _box_surface(h, n=3000, seed=0):
+    rng = np.random.default_rng(seed)
+    P = rng.uniform(-h, h, (n, 3))
+    ax = rng.integers(0, 3, n)
+    P[np.arange(n), ax] = np.where(rng.random(n) < 0.5, -1, 1) * h[ax]
+    return P
+
+
+def _tipped(theta_deg, h):
+    """Pose of a box (half extents h) standing on the table z = 0, turned by theta about its bottom edge
+    y = +h_y, z = 0 (a topple toward +y)."""
+    edge = np.array([0.0, h[1], 0.0])
+    R = so3_exp(np.radians([-theta_deg, 0.0, 0.0]))
+    c0 = np.array([0.0, 0.0, h[2]])  # centre of the standing box
+    return make_X(R, edge + R @ (c0 - edge))
+
+
+def test_se3_log_exp_roundtrip():
+    X = make_X(so3_exp(np.array([0.3, -0.2, 0.5])), np.array([0.1, -0.05, 0.2]))
+    w, u = se3_log(X)
+    assert np.allclose(se3_exp(w, u), X, atol=1e-10)
+
+
+def test_pose_consistent_rejects_a_pose_through_the_table():
+    h = np.array([0.035, 0.035, 0.1])
+    Q = _box_surface(h)
+    assert pose_consistent(_tipped(90.0, h), Q, 0.0, None, 0.01, 0.02, 0.05)
+    assert not pose_consistent(_tipped(110.0, h), Q, 0.0, None, 0.01, 0.02, 0.05)
