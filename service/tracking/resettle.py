@@ -303,6 +303,16 @@ def base_shift(B_W: np.ndarray, seen: "callable", f: np.ndarray, max_shift: floa
     return 0.0
 
 
+def tip_direction(X_a: np.ndarray, X_b: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """The horizontal direction f (3,) an object tips toward between poses X_a and X_b (4, 4), f = h × z with h the
+    horizontal part of the turn's axis, and the turn's angle (rad); None when the turn has no horizontal axis."""
+    w = so3_log(X_b[:3, :3] @ X_a[:3, :3].T)
+    h = np.array([w[0], w[1], 0.0])
+    if np.linalg.norm(h) < 1e-6:
+        return None
+    return np.cross(h / np.linalg.norm(h), [0.0, 0.0, 1.0]), float(np.linalg.norm(w))
+
+
 def tip_path(X_a: np.ndarray, X_b: np.ndarray, pivot: np.ndarray) -> "callable":
     """The poses of a topple between the pose X_a (4,4) before the fall and the settled pose X_b (4,4) as a turn
     about the line through ``pivot`` (3,) (the leading bottom edge at X_a, on the table) along the axis of the

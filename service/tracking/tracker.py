@@ -678,6 +678,22 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     return icp_result(X_OW, o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist), model
 
 
+def _fall_base(session, X_a: np.ndarray, X_b: np.ndarray, X_0: np.ndarray, pre: list[Keyframe],
+               cfg: TrackingConfig) -> tuple[np.ndarray, float, np.ndarray] | None:
+    """For a topple from pose X_a to X_b: the tipping direction f (3,) and the turn's angle (rad)
+    (``resettle.tip_direction``), and the object's base at frame 0 (``resettle.base_points`` of the model of the
+    keyframes ``pre`` before the fall, (M, 3) in O); None without a horizontal turn or with fewer than 30 base points."""
+    from service.tracking.resettle import base_points, tip_direction
+
+    tip = tip_direction(X_a, X_b)
+    if tip is None:
+        return None
+    B = base_points(_model_from(pre, cfg.model_voxel).Q, X_0, session.table_height)
+    if len(B) < 30:
+        return None
+    return tip[0], tip[1], B
+
+
 def _resettle_refine(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, keyframes: list[Keyframe],
                      carver: "FreeSpace | None", landings: list, cfg: TrackingConfig) -> ObjectModel | None:
     """Every adopted topple join (``_resettle_check``) moved forward along its tipping direction f until the
@@ -689,7 +705,7 @@ def _resettle_refine(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
     poses (the segment is consistent within itself). The shift (at most ``resettle_max_shift``) moves the poses
     from frame i up to the next adopted fall and the keyframes among them. Returns the rebuilt model when a join
     moved, else None."""
-    from service.tracking.resettle import base_points, base_shift
+    from service.tracking.resettle import base_shift
 
     adopted = [ld for ld in landings if ld.adopted]
     moved = False
@@ -701,14 +717,10 @@ def _resettle_refine(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
         pre = [kf for kf in keyframes if kf.index < ld.g0]
         if len(seg) < 3 or not pre:
             continue
-        w = so3_log(X[i][:3, :3] @ X[ld.g0][:3, :3].T)  # the fall's turn: its horizontal axis h gives f = h × z
-        h = np.array([w[0], w[1], 0.0])
-        if np.linalg.norm(h) < 1e-6:
+        fall = _fall_base(session, X[ld.g0], X[i], X[0], pre, cfg)
+        if fall is None:
             continue
-        f = np.cross(h / np.linalg.norm(h), [0.0, 0.0, 1.0])
-        B = base_points(_model_from(pre, cfg.model_voxel).Q, X[0], session.table_height)
-        if len(B) < 30:
-            continue
+        f, _, B = fall
         B_W = B @ X[i][:3, :3].T + X[i][:3, 3]
         view = FreeSpace(session.K, session.X_WC, 0.003, 1)
         X_iinv = X_inv(X[i])
@@ -746,8 +758,7 @@ def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
     registration (inlier fraction, residual). Updates X, tracked, frac, rmse in place; returns per checked frame
     (index, rotation and translation from the path, replaced)."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import pose_consistent
-    from service.tracking.resettle import base_points, leading_pivot, path_distance, path_fit, tip_path
+    from service.tracking.resettle import leading_pivot, path_distance, path_fit, pose_consistent, tip_path
 
     Q = model.Q[:: max(1, len(model.Q) // 4000)]
     out = []
@@ -760,17 +771,13 @@ def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
         if not before or not pre or not tracked[i]:
             continue
         a = before[-1]
-        w = so3_log(X[i][:3, :3] @ X[a][:3, :3].T)
-        h = np.array([w[0], w[1], 0.0])
-        if np.linalg.norm(h) < 1e-6:
+        fall = _fall_base(session, X[a], X[i], X[0], pre, cfg)
+        if fall is None:
             continue
-        f = np.cross(h / np.linalg.norm(h), [0.0, 0.0, 1.0])
-        B = base_points(_model_from(pre, cfg.model_voxel).Q, X[0], session.table_height)
-        if len(B) < 30:
-            continue
+        f, turn, B = fall
         pivot = leading_pivot(B @ X[a][:3, :3].T + X[a][:3, 3], f, session.table_height)
         path = tip_path(X[a], X[i], pivot)
-        n = max(2, int(np.ceil(np.degrees(np.linalg.norm(w)) / cfg.resettle_path_step_deg)))
+        n = max(2, int(np.ceil(np.degrees(turn) / cfg.resettle_path_step_deg)))
         poses = [path(k / n) for k in range(n + 1)]
         for j in range(a + 1, i):
             o = obs[j]
