@@ -148,8 +148,10 @@ class ResidualConfig:
     # K-fold cross-fitting of the held-out test (docs/residuals.md §4): 1 = one seeded split (half the units held
     # out); K >= 2 = every unit (toss, or block of one session) held out exactly once, the corrections and the
     # candidates fitted on the complement of each fold, rules 1-7 applied to the union of the folds' held-out errors, then
-    # rule 8: every fold's value departs from "no effect" the same way (crossfit.fold_agreement)
-    folds: int = 1
+    # rule 8: every fold's value departs from "no effect" the same way (crossfit.fold_agreement). Default 2: on plain
+    # learned-model strike sessions (the pipeline's path) one split accepted a wrong effect on 3 of 21, 2 folds on none
+    # (docs/residuals.md §7, "Plain learned-model sessions 610-621"); 2-3.7x the CPU of one split
+    folds: int = 2
 
     def __post_init__(self) -> None:
         for name in ("max_base_error_rel_learned", "launch_speed", "launch_max_s"):
