@@ -586,8 +586,6 @@ def _final_from_neighbors(session, obs: list[FrameObs], X: np.ndarray, tracked: 
     registration from the neighbour's pose replaces the frame's when it fits better (inlier fraction, residual) and
     is consistent with the table and the frame's own free space (``resettle.pose_consistent``). Neighbour poses
     are those of the final pass (not updated during this sweep). Updates X, tracked, frac, rmse in place."""
-    from service.tracking.resettle import pose_consistent
-
     X0 = X.copy()
     Q = model.Q[:: max(1, len(model.Q) // 4000)]
     for i in range(1, len(obs)):
@@ -598,13 +596,7 @@ def _final_from_neighbors(session, obs: list[FrameObs], X: np.ndarray, tracked: 
                   and any(np.array(pose_distance(X0[i], X0[j])) > (cfg.final_nb_dist, cfg.final_nb_deg))]
         if not starts:
             continue
-        view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
-        view.add(i, session.depth(i), np.eye(4))
-
-        def ok(Xc: np.ndarray) -> bool:
-            return pose_consistent(Xc, Q, session.table_height, view, cfg.landing_table_margin,
-                                   cfg.landing_table_frac, cfg.landing_seen_frac)
-
+        ok = _consistent_in(session, i, Q, cfg)
         cur = IcpResult(X[i], frac[i], rmse[i], 0, np.zeros(0))
         cur_ok = ok(X[i])
         for Xs in starts:
@@ -615,6 +607,17 @@ def _final_from_neighbors(session, obs: list[FrameObs], X: np.ndarray, tracked: 
                 cur, cur_ok = r, True
         X[i], frac[i], rmse[i] = cur.X_WO, cur.inlier_frac, cur.rmse
         tracked[i] = _good(cur, cfg)
+
+
+def _consistent_in(session, j: int, Q: np.ndarray, cfg: TrackingConfig) -> Callable[[np.ndarray], bool]:
+    """Whether a pose X_WO of the model points Q (M,3) is consistent with the table and with frame j's own free space
+    (``resettle.pose_consistent``, margins ``landing_table_*`` / ``landing_seen_frac``)."""
+    from service.tracking.resettle import pose_consistent
+
+    view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
+    view.add(j, session.depth(j), np.eye(4))
+    return lambda X_WO: pose_consistent(X_WO, Q, session.table_height, view, cfg.landing_table_margin,
+                                        cfg.landing_table_frac, cfg.landing_seen_frac)
 
 
 def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.ndarray, keyframes: list[Keyframe],
@@ -758,7 +761,7 @@ def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
     registration (inlier fraction, residual). Updates X, tracked, frac, rmse in place; returns per checked frame
     (index, rotation and translation from the path, replaced)."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import leading_pivot, path_distance, path_fit, pose_consistent, tip_path
+    from service.tracking.resettle import leading_pivot, path_distance, path_fit, tip_path
 
     Q = model.Q[:: max(1, len(model.Q) // 4000)]
     out = []
@@ -783,13 +786,7 @@ def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
             o = obs[j]
             if len(o.P_W) < cfg.min_points:
                 continue
-            view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
-            view.add(j, session.depth(j), np.eye(4))
-
-            def ok(Xc: np.ndarray) -> bool:
-                return pose_consistent(Xc, Q, session.table_height, view, cfg.landing_table_margin,
-                                       cfg.landing_table_frac, cfg.landing_seen_frac)
-
+            ok = _consistent_in(session, j, Q, cfg)
             d_rot, d_t, _ = path_distance(X[j], poses)
             if tracked[j] and d_rot <= cfg.resettle_path_deg and d_t <= cfg.resettle_path_dist and ok(X[j]):
                 out.append((j, d_rot, d_t, False))
@@ -810,8 +807,6 @@ def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
     """The frames g0…i−1 of every adopted landing registered backwards from the settled frame i against ``model``
     (starts: the next frame's pose and the backward constant-velocity prediction), and from their forward pose; the
     better consistent fit wins, a frame with none is lost. Updates X, tracked, frac, rmse in place."""
-    from service.tracking.resettle import pose_consistent
-
     Q = model.Q[:: max(1, len(model.Q) // 4000)]
     for ld in landings:
         if not ld.adopted:
@@ -821,8 +816,7 @@ def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
             if len(o.P_W) < cfg.min_points:
                 tracked[j] = False
                 continue
-            view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
-            view.add(j, session.depth(j), np.eye(4))
+            consistent = _consistent_in(session, j, Q, cfg)
             starts = [X[j]]
             if tracked[j + 1]:
                 starts.append(X[j + 1])
@@ -831,8 +825,7 @@ def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
             best, best_ok = None, False
             for Xs in starts:
                 r = icp(o.P_W, Xs, model.tree, model.Q, model.N, N_src=o.N_W, **{**icp_kw, "dist0": 0.02})
-                ok = _good(r, cfg) and pose_consistent(r.X_WO, Q, session.table_height, view, cfg.landing_table_margin,
-                                                        cfg.landing_table_frac, cfg.landing_seen_frac)
+                ok = _good(r, cfg) and consistent(r.X_WO)
                 if best is None or (ok and not best_ok) or (ok == best_ok and _better(r, best)):
                     best, best_ok = r, ok
             X[j], frac[j], rmse[j] = best.X_WO, best.inlier_frac, best.rmse
