@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -370,6 +370,9 @@ class TrackingConfig:
     resettle_rest_dist: float = 0.005
 
     def __post_init__(self) -> None:
+        for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
+            if f.type in ("bool", bool) and not isinstance(getattr(self, f.name), (bool, np.bool_)):
+                raise ValueError(f"TrackingConfig.{f.name} must be true or false, not {getattr(self, f.name)!r}")
         if self.color_mode not in ("gray", "chroma"):
             raise ValueError(f"TrackingConfig.color_mode must be 'gray' or 'chroma', not {self.color_mode!r}")
         self.stage_set("degen_stages")
