@@ -37,8 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.tracking.spin import SpinResult, _runs, _widen, fast_frames, find_axis, solve_spin_graph, spin_closure, \
-    spin_links, spin_mixed
+from service.tracking.spin import SpinResult, fast_frames, find_axis, runs, solve_spin_graph, spin_closure, spin_links, \
+    spin_mixed, widen
 from service.transforms import mat_to_quat
 
 
@@ -75,7 +75,7 @@ def topple_frames(X_WO: np.ndarray, a: np.ndarray, *, rate_deg: float = 0.4, min
     idx = np.arange(n)
     d = tau[np.minimum(idx + half, n - 1)] - tau[np.maximum(idx - half, 0)]
     merged: list[list[int]] = []
-    for s, e in _runs(np.abs(d) > rate_deg * 2 * half):
+    for s, e in runs(np.abs(d) > rate_deg * 2 * half):
         if merged and s - merged[-1][1] <= gap:
             merged[-1][1] = e
         else:
@@ -107,6 +107,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
     the guard: ``spin_mixed``'s result itself."""
     n = len(X_WO)
     memo: dict = {}
+    parts: dict = {}  # spin_mixed's graph solution, reused below (the same links: same poses, axis and settings)
 
     def match_once(da, db):  # the default estimate and the one with the topples share the pairs
         key = (id(da), id(db))
@@ -118,7 +119,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
                       graph_votes=graph_votes, smooth=smooth, match=match_once, sep=sep, profile=profile,
                       max_deg=max_deg, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg, long_votes=long_votes,
                       fast_span=fast_span, fast_rate_deg=fast_rate_deg, fast_dilate=fast_dilate,
-                      fast_votes=fast_votes)
+                      fast_votes=fast_votes, parts=parts)
     none = np.zeros(n, bool)
     if not base.is_revolution or base.rejected:
         return base, none
@@ -132,7 +133,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
               sep=sep, profile=profile, max_deg=max_deg, axis=axis)
     prior = spin_closure(feats, X_WO, Q, N, fast=fall, theta_fast=np.cumsum(np.where(fall, -psi, 0.0)), **kw)
     used = np.zeros(n, bool)
-    for s, e in _runs(fall):  # the guard: the texture kept where it agrees with the no-twist change
+    for s, e in runs(fall):  # the guard: the texture kept where it agrees with the no-twist change
         d = (prior.theta[e - 1] - prior.theta[s - 1]) - (base.theta[e - 1] - base.theta[s - 1])
         if abs(d) > np.radians(fall_tol_deg):
             used[s:e] = True
@@ -141,15 +142,18 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
     weak = np.zeros(n, bool)
     fast = fast_frames(X_WO, fast_span, fast_rate_deg, fast_dilate)
     if fast[1:].any():
-        first = spin_closure(feats, X_WO, Q, N, fast=used, theta_fast=np.cumsum(np.where(used, -psi, 0.0)), **kw)
-        weak = _widen(fast & (first.votes < fast_votes), fast_dilate) & ~used
+        first = prior if np.array_equal(used, fall) else \
+            spin_closure(feats, X_WO, Q, N, fast=used, theta_fast=np.cumsum(np.where(used, -psi, 0.0)), **kw)
+        weak = widen(fast & (first.votes < fast_votes), fast_dilate) & ~used
         weak[0] = False
     inc = np.where(used, -psi, 0.0)
     if weak.any():
-        links = spin_links(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=graph_votes,
-                           match=match_once, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg,
-                           long_votes=long_votes)
-        theta_g = solve_spin_graph(n, links) if len(links) else np.zeros(n)
+        theta_g = parts.get("theta_g")
+        if theta_g is None:
+            links = spin_links(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=graph_votes,
+                               match=match_once, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg,
+                               long_votes=long_votes)
+            theta_g = solve_spin_graph(n, links) if len(links) else np.zeros(n)
         inc = np.where(weak, np.r_[0.0, np.diff(theta_g)], inc)
     res = spin_closure(feats, X_WO, Q, N, fast=used | weak, theta_fast=np.cumsum(inc), **kw)
     return res, used
