@@ -368,6 +368,18 @@ class TrackingConfig:
     # the table (resettle.rest_offsets: a settled object rests on the table; 0: off)
     resettle_rest_deg: float = 0.0  # 3: development 840 4.65 -> 1.32 deg median, 861 6.97 -> 1.78 deg (3.67 -> 9.49 mm)
     resettle_rest_dist: float = 0.005
+    # a body of revolution lying on the table has its axis parallel to the table plane (its widest straight stretch,
+    # the lowest generator line, touches the table): after the spin closure, when the body stood on its base at
+    # frame 0 (found axis within lie_level_stand_deg of the vertical: the axis is then the vertical of frame 0) and
+    # its profile has a straight widest stretch, every frame with the axis within lie_level_deg of the horizontal (it
+    # and its 3 neighbours on each side) and that stretch within lie_level_margin of the table is turned about the
+    # horizontal through its centroid's axis point until the axis is horizontal (at most lie_level_max_deg;
+    # service.tracking.lying, docs/tracking.md "Lying body levelled")
+    lie_level: bool = True  # on: development bottle topples 531 4.94 -> 2.68 deg median, 521 1.79 -> 1.21, 881 11.74 -> 10.56
+    lie_level_stand_deg: float = 15.0
+    lie_level_deg: float = 15.0
+    lie_level_margin: float = 0.015
+    lie_level_max_deg: float = 10.0
 
     def __post_init__(self) -> None:
         for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
@@ -473,6 +485,11 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not 0 < self.spin_fall_min_deg <= 90:
             raise ValueError(f"TrackingConfig.spin_fall_min_deg must be in (0, 90], not {self.spin_fall_min_deg!r}")
+        for name in ("lie_level_stand_deg", "lie_level_deg", "lie_level_max_deg"):
+            if not 0 < getattr(self, name) < 90:
+                raise ValueError(f"TrackingConfig.{name} must be in (0, 90), not {getattr(self, name)!r}")
+        if not self.lie_level_margin >= 0:
+            raise ValueError(f"TrackingConfig.lie_level_margin must be >= 0, not {self.lie_level_margin!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages``, ``color_stages`` or ``sil_stages`` (comma-separated; ValueError for
