@@ -354,7 +354,7 @@ class TrackingConfig:
     spin_fall_tol_deg: float = 3.0
     # the axis of the no-twist increments: "found" (the spin closure's axis) or "vertical" (the vertical of frame 0
     # when the found axis is within 15° of it: the body stood on its base; fall.standing_axis)
-    spin_fall_axis: str = "found"
+    spin_fall_axis: str = "found"  # "vertical": development 881 10.56 -> 2.71 deg median, evaluation 704 worse
     # the fall's frames of an adopted join checked against the tipping motion (tracker._resettle_path,
     # resettle.tip_path): a frame lost, inconsistent, or more than resettle_path_deg / resettle_path_dist from the
     # turn about the leading bottom edge between the last pose before the fall and the join takes the path's pose
@@ -378,7 +378,7 @@ class TrackingConfig:
     # and its 3 neighbours on each side) and that stretch within lie_level_margin of the table is turned about the
     # horizontal through its centroid's axis point until the axis is horizontal (at most lie_level_max_deg;
     # service.tracking.lying, docs/tracking.md "Lying body levelled")
-    lie_level: bool = True  # on: development bottle topples 531 4.94 -> 2.68 deg median, 521 1.79 -> 1.21, 881 11.74 -> 10.56
+    lie_level: bool = True  # on: development 531 4.94 -> 2.68 deg median; evaluation 704 1.91 / 10.05 -> 1.44 / 8.58
     lie_level_stand_deg: float = 15.0
     lie_level_deg: float = 15.0
     lie_level_margin: float = 0.015
@@ -489,7 +489,8 @@ class TrackingConfig:
         if not 0 < self.spin_fall_min_deg <= 90:
             raise ValueError(f"TrackingConfig.spin_fall_min_deg must be in (0, 90], not {self.spin_fall_min_deg!r}")
         if self.spin_fall_axis not in ("found", "vertical"):
-            raise ValueError(f"TrackingConfig.spin_fall_axis must be 'found' or 'vertical', not {self.spin_fall_axis!r}")
+            raise ValueError(f"TrackingConfig.spin_fall_axis must be 'found' or 'vertical', not "
+                             f"{self.spin_fall_axis!r}")
         for name in ("lie_level_stand_deg", "lie_level_deg", "lie_level_max_deg"):
             if not 0 < getattr(self, name) < 90:
                 raise ValueError(f"TrackingConfig.{name} must be in (0, 90), not {getattr(self, name)!r}")
