@@ -37,8 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.tracking.spin import SpinResult, _runs, _widen, fast_frames, find_axis, solve_spin_graph, spin_closure, \
-    spin_links, spin_mixed
+from service.tracking.spin import SpinResult, fast_frames, find_axis, runs, solve_spin_graph, spin_closure, spin_links, \
+    spin_mixed, widen
 from service.transforms import mat_to_quat
 
 
@@ -75,7 +75,7 @@ def topple_frames(X_WO: np.ndarray, a: np.ndarray, *, rate_deg: float = 0.4, min
     idx = np.arange(n)
     d = tau[np.minimum(idx + half, n - 1)] - tau[np.maximum(idx - half, 0)]
     merged: list[list[int]] = []
-    for s, e in _runs(np.abs(d) > rate_deg * 2 * half):
+    for s, e in runs(np.abs(d) > rate_deg * 2 * half):
         if merged and s - merged[-1][1] <= gap:
             merged[-1][1] = e
         else:
@@ -98,15 +98,18 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
               sep: float = 0.5, profile: str = "off", max_deg: float = 0.0, gate_deg: float = 10.0, n_short: int = 2,
               rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4, fast_rate_deg: float = 2.0,
               fast_dilate: int = 4, fast_votes: int = 60, fall_rate_deg: float = 0.4, fall_min_deg: float = 45.0,
-              fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0) -> tuple[SpinResult, np.ndarray]:
+              fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0, twist_axis: str = "found"
+              ) -> tuple[SpinResult, np.ndarray]:
     """(spin correction, (N,) bool frames that took the no-twist increments) for the poses X_WO (N,4,4) of a body of
     revolution with model Q, N (M,3) in O and interior features ``feats`` (as ``spin_mixed``, whose settings the
     other arguments are): ``spin_mixed``'s estimate, except over the topples (``topple_frames``) where its spin
     change differs from the no-twist change by more than ``fall_tol_deg``: those take the no-twist increments and
     the other weak fast frames the graph's, as in ``spin_mixed`` (module docstring). No topple, or none refused by
-    the guard: ``spin_mixed``'s result itself."""
+    the guard: ``spin_mixed``'s result itself. ``twist_axis`` "vertical": the twist increments are taken about the
+    vertical of frame 0 when the found axis is within 15° of it (``standing_axis``), else about the found axis."""
     n = len(X_WO)
     memo: dict = {}
+    parts: dict = {}  # spin_mixed's graph solution, reused below (the same links: same poses, axis and settings)
 
     def match_once(da, db):  # the default estimate and the one with the topples share the pairs
         key = (id(da), id(db))
@@ -118,7 +121,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
                       graph_votes=graph_votes, smooth=smooth, match=match_once, sep=sep, profile=profile,
                       max_deg=max_deg, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg, long_votes=long_votes,
                       fast_span=fast_span, fast_rate_deg=fast_rate_deg, fast_dilate=fast_dilate,
-                      fast_votes=fast_votes)
+                      fast_votes=fast_votes, parts=parts)
     none = np.zeros(n, bool)
     if not base.is_revolution or base.rejected:
         return base, none
@@ -127,12 +130,12 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
     fall = topple_frames(X_WO, a, rate_deg=fall_rate_deg, min_deg=fall_min_deg, edge_deg=fall_edge_deg)
     if not fall.any():
         return base, none
-    psi = twist_steps(X_WO, a)
+    psi = twist_steps(X_WO, standing_axis(a) if twist_axis == "vertical" else a)
     kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match_once,
               sep=sep, profile=profile, max_deg=max_deg, axis=axis)
     prior = spin_closure(feats, X_WO, Q, N, fast=fall, theta_fast=np.cumsum(np.where(fall, -psi, 0.0)), **kw)
     used = np.zeros(n, bool)
-    for s, e in _runs(fall):  # the guard: the texture kept where it agrees with the no-twist change
+    for s, e in runs(fall):  # the guard: the texture kept where it agrees with the no-twist change
         d = (prior.theta[e - 1] - prior.theta[s - 1]) - (base.theta[e - 1] - base.theta[s - 1])
         if abs(d) > np.radians(fall_tol_deg):
             used[s:e] = True
@@ -141,15 +144,30 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
     weak = np.zeros(n, bool)
     fast = fast_frames(X_WO, fast_span, fast_rate_deg, fast_dilate)
     if fast[1:].any():
-        first = spin_closure(feats, X_WO, Q, N, fast=used, theta_fast=np.cumsum(np.where(used, -psi, 0.0)), **kw)
-        weak = _widen(fast & (first.votes < fast_votes), fast_dilate) & ~used
+        first = prior if np.array_equal(used, fall) else \
+            spin_closure(feats, X_WO, Q, N, fast=used, theta_fast=np.cumsum(np.where(used, -psi, 0.0)), **kw)
+        weak = widen(fast & (first.votes < fast_votes), fast_dilate) & ~used
         weak[0] = False
     inc = np.where(used, -psi, 0.0)
     if weak.any():
-        links = spin_links(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=graph_votes,
-                           match=match_once, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg,
-                           long_votes=long_votes)
-        theta_g = solve_spin_graph(n, links) if len(links) else np.zeros(n)
+        theta_g = parts.get("theta_g")
+        if theta_g is None:
+            links = spin_links(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=graph_votes,
+                               match=match_once, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg,
+                               long_votes=long_votes)
+            theta_g = solve_spin_graph(n, links) if len(links) else np.zeros(n)
         inc = np.where(weak, np.r_[0.0, np.diff(theta_g)], inc)
     res = spin_closure(feats, X_WO, Q, N, fast=used | weak, theta_fast=np.cumsum(inc), **kw)
     return res, used
+
+
+def standing_axis(a: np.ndarray, stand_deg: float = 15.0) -> np.ndarray:
+    """(3,) the axis in O about which a body of revolution's twist is measured through its topple: the vertical of
+    frame 0 (ẑ in O, X_WO(0) having identity rotation; sign of a) when the found axis a (3,) is within ``stand_deg`` of
+    it — the body stood on its base, a disc perpendicular to its axis, so that vertical is its axis — else a itself.
+    The found axis is 3-7° off the true one on the development bottles (the vertical of frame 0: < 0.1°), and a
+    topple's 90° of tilt measured about an axis δ off carries 90° sin δ of false twist (881: +10° at the landing)."""
+    a = np.asarray(a, float) / np.linalg.norm(a)
+    if abs(a[2]) < np.cos(np.radians(stand_deg)):
+        return a
+    return np.array([0.0, 0.0, 1.0 if a[2] > 0 else -1.0])

@@ -462,10 +462,11 @@ def fast_frames(X_WO: np.ndarray, span: int = 4, rate_deg: float = 2.0, dilate: 
     R = X_WO[:, :3, :3]
     prev = np.maximum(np.arange(n) - span, 0)
     turn = np.degrees(rotation_angle(np.einsum("nji,njk->nik", R, R[prev])))
-    return _widen(turn > rate_deg * span, dilate)
+    return widen(turn > rate_deg * span, dilate)
 
 
-def _widen(f: np.ndarray, d: int) -> np.ndarray:
+def widen(f: np.ndarray, d: int) -> np.ndarray:
+    """f (N,) bool widened by d frames on each side."""
     out = f.copy()
     for k in range(1, d + 1):
         out[k:] |= f[:-k]
@@ -478,12 +479,13 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
                sep: float = 0.5, profile: str = "off", max_deg: float = 0.0, gate_deg: float = 10.0,
                n_short: int = 2, rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4,
                fast_rate_deg: float = 2.0, fast_dilate: int = 4, fast_votes: int = 60, table_z: float | None = None,
-               roll: dict | None = None) -> SpinResult:
+               roll: dict | None = None, parts: dict | None = None) -> SpinResult:
     """Spin correction like ``spin_closure`` (same axis, cap, result): the chain, with the fast frames where it pooled
     fewer than ``fast_votes`` votes (``fast_frames``; widened) taking the increments of the pose graph
     (``spin_links``, ``solve_spin_graph``; comment above). With ``table_z`` (the table's height in W) the frames
     of confirmed rolling stretches take the roll's increments instead (``roll_spin``, ``roll_stretches``; ``roll``:
-    their keyword settings, keys of both)."""
+    their keyword settings, keys of both). ``parts``: a dict that receives the intermediate results others reuse
+    (key "theta_g": the graph's solution (N,), when it was computed)."""
     n = len(X_WO)
     axis = find_axis(Q, N, tau, sep, profile)
     memo: dict = {}
@@ -506,7 +508,7 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
     if not axis[0] or (not fast[1:].any() and not rolling.any()):
         return spin_closure(feats, X_WO, Q, N, **kw)
     first = spin_closure(feats, X_WO, Q, N, **kw)
-    weak = _widen(fast & (first.votes < fast_votes), fast_dilate) if fast[1:].any() else np.zeros(n, bool)
+    weak = widen(fast & (first.votes < fast_votes), fast_dilate) if fast[1:].any() else np.zeros(n, bool)
     weak[0] = False
     if rolling.any():
         rolling = roll_stretches(first.theta, rolling, phi, psi, **stretch_kw)
@@ -519,6 +521,8 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
                            match=match_once, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg,
                            long_votes=long_votes)
         theta_g = solve_spin_graph(n, links) if len(links) else np.zeros(n)
+        if parts is not None:
+            parts["theta_g"] = theta_g.copy()
     if rolling.any():  # increments of the roll on its frames, of the graph on the other weak ones
         inc = np.where(weak, np.r_[0.0, np.diff(theta_g)], 0.0)
         inc[rolling] = np.r_[0.0, np.diff(phi - psi)][rolling]
@@ -592,13 +596,13 @@ def roll_spin(X_WO: np.ndarray, Q: np.ndarray, a: np.ndarray, c: np.ndarray, tab
     hi, lo = np.minimum(k + window // 2, n - 1), np.maximum(k - window // 2, 0)
     fast = np.abs(phi[hi] - phi[lo]) > np.radians(rate_deg) * np.maximum(hi - lo, 1)
     rolling = fast & cand
-    for s, e in _runs(rolling):
+    for s, e in runs(rolling):
         if e - s < min_frames:
             rolling[s:e] = False
     return rolling, phi, psi
 
 
-def _runs(f: np.ndarray) -> list[tuple[int, int]]:
+def runs(f: np.ndarray) -> list[tuple[int, int]]:
     """[start, end) of the runs of True in f (N,) bool."""
     d = np.diff(np.r_[0, f.astype(int), 0])
     return list(zip(np.nonzero(d == 1)[0], np.nonzero(d == -1)[0]))
@@ -612,7 +616,7 @@ def roll_stretches(first_theta: np.ndarray, rolling: np.ndarray, phi: np.ndarray
     |Δφ| (a texture within ``tol`` of the roll is kept: the roll's own error, mostly the model's contact radius, is
     about that large)."""
     out = np.zeros(len(rolling), bool)
-    for s, e in _runs(rolling):
+    for s, e in runs(rolling):
         s0 = max(s - 1, 0)
         droll = phi[e - 1] - phi[s0]
         dtex = psi[e - 1] - psi[s0] + first_theta[e - 1] - first_theta[s0]

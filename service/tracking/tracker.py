@@ -575,6 +575,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
         spin = _spin_closure(obs, X, model, cfg, session.table_height if cfg.spin_roll else None)
+        if cfg.lie_level:  # a lying body of revolution: axis parallel to the table (service.tracking.lying)
+            _level_lying(X, model, spin, session.table_height, cfg)
     X = interpolate_untracked(X, tracked)
     return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings)
 
@@ -870,6 +872,17 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
     return res
 
 
+def _level_lying(X: np.ndarray, model: ObjectModel, spin: "SpinResult", table_z: float, cfg: TrackingConfig) -> None:
+    """``lying.level_lying`` with the tracker's settings on the poses X (N,4,4), in place: the frames in which a body
+    of revolution that stood on its base at frame 0 lies on the table get its axis parallel to the table."""
+    if spin is None or not spin.is_revolution:
+        return
+    from service.tracking.lying import level_lying
+
+    X[:], _ = level_lying(X, model.Q, table_z, spin.axis_O, stand_deg=cfg.lie_level_stand_deg,
+                          lie_deg=cfg.lie_level_deg, margin=cfg.lie_level_margin, max_deg=cfg.lie_level_max_deg)
+
+
 def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, common: dict, graph: dict):
     """``fall.spin_fall`` with the tracker's settings: the mixed spin estimate, with no spin about the axis over the
     topples where the texture lagged (service/tracking/fall.py)."""
@@ -879,7 +892,8 @@ def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConf
                        fast_span=cfg.spin_mixed_span, fast_rate_deg=cfg.spin_mixed_rate_deg,
                        fast_dilate=cfg.spin_mixed_dilate, fast_votes=cfg.spin_mixed_votes,
                        fall_rate_deg=cfg.spin_fall_rate_deg, fall_min_deg=cfg.spin_fall_min_deg,
-                       fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg, **common, **graph)
+                       fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg,
+                       twist_axis=cfg.spin_fall_axis, **common, **graph)
     return res
 
 

@@ -352,6 +352,9 @@ class TrackingConfig:
     spin_fall_min_deg: float = 45.0
     spin_fall_edge_deg: float = 1.0
     spin_fall_tol_deg: float = 3.0
+    # the axis of the no-twist increments: "found" (the spin closure's axis) or "vertical" (the vertical of frame 0
+    # when the found axis is within 15° of it: the body stood on its base; fall.standing_axis)
+    spin_fall_axis: str = "found"  # "vertical": development 881 10.56 -> 2.71 deg median, evaluation 704 worse
     # the fall's frames of an adopted join checked against the tipping motion (tracker._resettle_path,
     # resettle.tip_path): a frame lost, inconsistent, or more than resettle_path_deg / resettle_path_dist from the
     # turn about the leading bottom edge between the last pose before the fall and the join takes the path's pose
@@ -368,6 +371,18 @@ class TrackingConfig:
     # the table (resettle.rest_offsets: a settled object rests on the table; 0: off)
     resettle_rest_deg: float = 0.0  # 3: development 840 4.65 -> 1.32 deg median, 861 6.97 -> 1.78 deg (3.67 -> 9.49 mm)
     resettle_rest_dist: float = 0.005
+    # a body of revolution lying on the table has its axis parallel to the table plane (its widest straight stretch,
+    # the lowest generator line, touches the table): after the spin closure, when the body stood on its base at
+    # frame 0 (found axis within lie_level_stand_deg of the vertical: the axis is then the vertical of frame 0) and
+    # its profile has a straight widest stretch, every frame with the axis within lie_level_deg of the horizontal (it
+    # and its 3 neighbours on each side) and that stretch within lie_level_margin of the table is turned about the
+    # horizontal through its centroid's axis point until the axis is horizontal (at most lie_level_max_deg;
+    # service.tracking.lying, docs/tracking.md "Lying body levelled")
+    lie_level: bool = True  # on: development 531 4.94 -> 2.68 deg median; evaluation 704 1.91 / 10.05 -> 1.44 / 8.58
+    lie_level_stand_deg: float = 15.0
+    lie_level_deg: float = 15.0
+    lie_level_margin: float = 0.015
+    lie_level_max_deg: float = 10.0
 
     def __post_init__(self) -> None:
         for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
@@ -473,6 +488,14 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not 0 < self.spin_fall_min_deg <= 90:
             raise ValueError(f"TrackingConfig.spin_fall_min_deg must be in (0, 90], not {self.spin_fall_min_deg!r}")
+        if self.spin_fall_axis not in ("found", "vertical"):
+            raise ValueError(f"TrackingConfig.spin_fall_axis must be 'found' or 'vertical', not "
+                             f"{self.spin_fall_axis!r}")
+        for name in ("lie_level_stand_deg", "lie_level_deg", "lie_level_max_deg"):
+            if not 0 < getattr(self, name) < 90:
+                raise ValueError(f"TrackingConfig.{name} must be in (0, 90), not {getattr(self, name)!r}")
+        if not self.lie_level_margin >= 0:
+            raise ValueError(f"TrackingConfig.lie_level_margin must be >= 0, not {self.lie_level_margin!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages``, ``color_stages`` or ``sil_stages`` (comma-separated; ValueError for
