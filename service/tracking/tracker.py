@@ -846,6 +846,10 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
     common = dict(tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
                   smooth=1 if cfg.spin_twist_smooth > 1 else cfg.spin_smooth,  # twist filtered instead (below)
                   match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)
+    if cfg.spin_arc_tau > 0:  # a body of revolution of which the model covers a part (spin.partial_tau)
+        from service.tracking.spin import partial_tau
+
+        common["tau"] = partial_tau(model.Q, model.N, cfg.spin_tau, cfg.spin_sep, cfg.spin_arc_tau)
     graph = dict(gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
                  long_votes=cfg.spin_graph_long_votes)
     if cfg.spin_fall and cfg.spin_solver == "mixed" and table_z is None:  # the mixed estimate, no spin in topples

@@ -383,6 +383,12 @@ class TrackingConfig:
     lie_level_deg: float = 15.0
     lie_level_margin: float = 0.015
     lie_level_max_deg: float = 10.0
+    # a model that fails the λ̂ test of a body of revolution (spin_tau: it scales a rotation by the model's extent, so a
+    # model covering a short band of the body fails) is taken for one when its weakest direction is one clear
+    # rotation whose normals lie in the meridian planes, κ = Σ (n·(a×d))² / Σ |a×d|² < spin_arc_tau (the motion seen
+    # by the surface as a fraction of the arc each point moves), and its radius profile fits within 2 mm
+    # (spin.partial_tau; 0: off; docs/tracking.md "Bodies of revolution seen in part")
+    spin_arc_tau: float = 0.08  # development partial bottle pivots 940, 941, 943, 944: worst 6.2-7.8 -> 2.5-3.4 deg
 
     def __post_init__(self) -> None:
         for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
@@ -496,6 +502,8 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be in (0, 90), not {getattr(self, name)!r}")
         if not self.lie_level_margin >= 0:
             raise ValueError(f"TrackingConfig.lie_level_margin must be >= 0, not {self.lie_level_margin!r}")
+        if not 0 <= self.spin_arc_tau < 1:
+            raise ValueError(f"TrackingConfig.spin_arc_tau must be in [0, 1), not {self.spin_arc_tau!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
         """The stages named by ``degen_stages``, ``color_stages`` or ``sil_stages`` (comma-separated; ValueError for
