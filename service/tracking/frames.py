@@ -13,11 +13,19 @@ several times in a row) and the frames ``pin``ned: ``run`` pins from the start t
 passes read when every frame is tracked (evenly spread, frame 0 among them, which the re-gauge reads again), and
 after tracking the frames they will read (the same unless frames were lost); memory is bounded by (keep_last + pinned frames) x (depth 4 + colour 3 + mask 1 bytes per pixel),
 about 2.4 MB per 640x480 frame. Every other attribute is the session's own.
+
+Read-ahead: when frame i is read for the first time right after frame i − 1 (the tracking loop reads the frames in
+order), frame i + 1's images of the kinds read of frame i − 1 are decoded on one background thread while frame i
+is processed (the decoders release the GIL), so the tracking loop waits less for decoding on two cores. The arrays
+are those the session's methods return, decoded once; the stage's outputs do not depend on it. One frame more is
+held (the one read ahead).
 """
 
 from __future__ import annotations
 
+import weakref
 from collections import OrderedDict
+from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Iterable
 
 import numpy as np
@@ -34,6 +42,9 @@ class FrameCache:
         self._frames: OrderedDict[int, dict[str, np.ndarray]] = OrderedDict()  # least recently read first
         self.decoded = 0  # images decoded (calls of the session's own methods)
         self.served = 0  # images returned
+        self._ahead: dict[int, Future] = {}  # frame -> its images being decoded ahead (module docstring)
+        self._pool: ThreadPoolExecutor | None = None
+        self._last_new: int | None = None  # the frame read last for the first time
 
     def pin(self, frames: Iterable[int]) -> None:
         """Keep ``frames`` from now on (in addition to the ones pinned before)."""
@@ -60,7 +71,11 @@ class FrameCache:
         i = int(i)
         entry = self._frames.get(i)
         if entry is None:
-            entry = self._frames[i] = {}
+            entry = self._frames[i] = self._take_ahead(i)
+            prev = self._frames.get(i - 1) if self._last_new == i - 1 else None
+            self._last_new = i
+            if prev:
+                self._read_ahead(i + 1, tuple(prev))
         else:
             self._frames.move_to_end(i)
         a = entry.get(kind)
@@ -70,6 +85,33 @@ class FrameCache:
         self.served += 1
         self._evict()
         return a.copy()
+
+    def _read_ahead(self, i: int, kinds: tuple[str, ...]) -> None:
+        """Decode frame i's images of ``kinds`` on the background thread (once; not past the last frame)."""
+        n = getattr(self._session, "n_frames", None)
+        if (n is not None and i >= n) or i in self._frames or i in self._ahead:
+            return
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="frames-ahead")
+            weakref.finalize(self, self._pool.shutdown, wait=False)
+        for k in [k for k in self._ahead if k < i - 1]:  # never read: dropped
+            del self._ahead[k]
+        s = self._session
+        self._ahead[i] = self._pool.submit(lambda: {k: getattr(s, k)(i) for k in kinds})
+
+    def _take_ahead(self, i: int) -> dict[str, np.ndarray]:
+        """Frame i's images decoded ahead ({} when it was not read ahead)."""
+        fut = self._ahead.pop(i, None)
+        if fut is None:
+            return {}
+        entry = fut.result()
+        self.decoded += len(entry)
+        return entry
+
+    def __getstate__(self):
+        d = dict(self.__dict__)
+        d["_ahead"], d["_pool"] = {}, None
+        return d
 
     def _evict(self) -> None:
         loose = [k for k in self._frames if k not in self._pinned]  # least recently read first

@@ -229,12 +229,11 @@ def _match(desc_a: np.ndarray | None, desc_b: np.ndarray | None, ratio: float = 
 
     if desc_a is None or desc_b is None or len(desc_a) < 2 or len(desc_b) < 2:
         return np.zeros((0, 2), int)
-    bf = cv2.BFMatcher(cv2.NORM_HAMMING)
-    out = []
-    for pair in bf.knnMatch(desc_a, desc_b, k=2):
-        if len(pair) == 2 and pair[0].distance < ratio * pair[1].distance and pair[0].distance < 64:
-            out.append((pair[0].queryIdx, pair[0].trainIdx))
-    return np.array(out, int).reshape(-1, 2)
+    # the two nearest of b per row of a as arrays (what BFMatcher.knnMatch computes, without one Python object per
+    # match): a tie for the nearest fails the ratio test whichever index is returned, so the pairs are the same
+    d, j = cv2.batchDistance(desc_a, desc_b, cv2.CV_32S, normType=cv2.NORM_HAMMING, K=2)
+    q = np.nonzero((d[:, 0] < ratio * d[:, 1].astype(np.float64)) & (d[:, 0] < 64))[0]
+    return np.stack([q, j[q, 0]], 1).astype(int).reshape(-1, 2)
 
 
 def _good(r: IcpResult, cfg: TrackingConfig) -> bool:

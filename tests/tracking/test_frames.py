@@ -106,3 +106,26 @@ def test_run_decodes_each_image_once_and_gives_the_same_outputs(tiny_push_sessio
     np.testing.assert_array_equal(cached.sdf.values, bare.sdf.values)
     np.testing.assert_array_equal(cached.visible_mesh.vertices, bare.visible_mesh.vertices)
     np.testing.assert_array_equal(cached.visible_points_O, bare.visible_points_O)
+
+
+def test_frames_read_in_order_are_decoded_ahead_once():
+    """Reading frames in order: frame i + 1 is decoded ahead (of the kinds read of frame i − 1), each image once,
+    the values the session's; reading out of order decodes nothing ahead."""
+    s = _Counting()
+    c = FrameCache(s, keep_last=2)
+    for i in range(3):
+        c.depth(i)
+        c.mask(i)
+    c._ahead[3].result()  # frame 3 decoded ahead while frame 2 was read
+    assert s.calls == {"depth": 4, "mask": 4, "rgb": 0}
+    for i in range(3, 6):
+        np.testing.assert_array_equal(c.depth(i), s.d[i])
+        np.testing.assert_array_equal(c.mask(i), s.m[i])
+        np.testing.assert_array_equal(c.rgb(i), s.c[i])  # not read of the frame before: decoded on demand
+    assert s.calls == {"depth": 6, "mask": 6, "rgb": 3} and not c._ahead  # none past the last frame
+    assert c.decoded == 15
+    s2 = _Counting()
+    c2 = FrameCache(s2, keep_last=2)
+    for i in (0, 2, 4):
+        c2.depth(i)
+    assert not c2._ahead and s2.calls["depth"] == 3

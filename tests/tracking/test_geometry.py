@@ -98,3 +98,31 @@ def test_velocities_use_real_timestamps():
     X = np.stack([make_X(np.eye(3), [0.2 * ti, 0, 0]) for ti in t])
     v, _ = velocities(t, X)
     np.testing.assert_allclose(v[:, 0], 0.2, atol=1e-9)
+
+
+def test_rotate_all_and_matcher_equal_their_references():
+    """RANSAC's residual kernel against the einsum it replaces (same sums; equal bit for bit on the machine the
+    benchmark runs on, within rounding elsewhere), and the ratio-test matcher against BFMatcher.knnMatch's pairs,
+    also on descriptors full of ties."""
+    import cv2
+
+    from service.tracking.geometry import _rotate_all
+    from service.tracking.tracker import _match
+
+    rng = np.random.default_rng(5)
+    R = np.stack([so3_exp(rng.normal(size=3)) for _ in range(20)])
+    A = rng.normal(0.3, 0.2, (37, 3))
+    np.testing.assert_allclose(_rotate_all(R, A), np.einsum("mij,nj->mni", R, A), rtol=0, atol=1e-15)
+
+    def knn_pairs(da, db):
+        out = [(p[0].queryIdx, p[0].trainIdx) for p in cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(da, db, k=2)
+               if len(p) == 2 and p[0].distance < 0.8 * p[1].distance and p[0].distance < 64]
+        return np.array(out, int).reshape(-1, 2)
+
+    for hi in (256, 3, 2):  # few distinct byte values: many equal distances
+        for _ in range(10):
+            da = rng.integers(0, hi, (int(rng.integers(2, 60)), 32), dtype=np.uint8)
+            db = rng.integers(0, hi, (int(rng.integers(2, 60)), 32), dtype=np.uint8)
+            db[: min(len(da), len(db)) // 2] = da[: min(len(da), len(db)) // 2] ^ (rng.random((min(len(da), len(db)) // 2, 32)) < 0.05).astype(np.uint8)
+            np.testing.assert_array_equal(_match(da, db), knn_pairs(da, db))
+    assert _match(None, db).shape == (0, 2) and _match(da[:1], db).shape == (0, 2)
