@@ -64,6 +64,7 @@ from service.transforms import X_inv, make_X, pose_distance, so3_exp, so3_log
 
 if TYPE_CHECKING:
     from service.tracking.spin import SpinResult
+    from service.tracking.tilt import TiltResult
 
 Progress = Callable[[float, str], None] | None
 
@@ -336,6 +337,7 @@ class TrackResult:
     landings: list = field(default_factory=list)  # resettle.Landing of
     # every topple landing joined (cfg.resettle: X_new the join; score_old / score_new the fractions of the pre-fall
     # model the frame sees through at the tracked / joined pose)
+    tilt: "TiltResult | None" = None  # tilt closure of an egg-like body (cfg.spin_tilt)
 
 
 def track(session, cfg: TrackingConfig, progress: Progress = None) -> TrackResult:
@@ -571,12 +573,14 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 def sil0(r: IcpResult, m: ObjectModel) -> IcpResult:
                     return _sil_refine(session, 0, o0.P_W, r, m, _sil_model(m, keyframes, rims, cfg), cfg)
             model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw, obs, tracked, session, sil0)
-    spin = None
+    spin = tilt = None
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
         spin = _spin_closure(obs, X, model, cfg, session.table_height if cfg.spin_roll else None)
+        if cfg.spin_tilt:
+            tilt = _spin_tilt(obs, X, model, spin, cfg)
     X = interpolate_untracked(X, tracked)
-    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings)
+    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings, tilt)
 
 
 def _final_from_neighbors(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
@@ -867,6 +871,26 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
 
         res = smooth_twist(res, X, cfg.spin_twist_smooth, cfg.spin_max_deg)
     X[:] = apply_spin(X, res)
+    return res
+
+
+def _spin_tilt(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, spin: "SpinResult", cfg: TrackingConfig
+               ) -> "TiltResult | None":
+    """``tilt.tilt_closure`` with the tracker's settings, applied to X (N,4,4) in place, when the spin closure found
+    an egg-like body (its axis from the radius profile: the eigen-axis failed the separation test) and applied its
+    correction; None otherwise."""
+    from service.tracking.spin import revolution_axis
+    from service.tracking.tilt import apply_tilt, tilt_closure
+
+    if spin is None or not spin.is_revolution or spin.rejected or not spin.observable:
+        return None
+    if revolution_axis(model.Q, model.N, cfg.spin_tau, cfg.spin_sep)[0]:  # one clearly weakest rotation: a bottle
+        return None
+    empty = (np.zeros((0, 3)), None)
+    feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
+    res = tilt_closure(feats, X, model.Q, spin.axis_O, spin.point_O, match=_match, voted=spin.votes > 0,
+                       tol=cfg.spin_tol, min_votes=cfg.spin_min_votes, smooth=cfg.spin_smooth)
+    X[:] = apply_tilt(X, res)
     return res
 
 
