@@ -20,7 +20,9 @@ least squares over the matches within ``tol`` of each other, Huber at ``huber`` 
 least ``min_votes`` matches and a well-conditioned 2×2 block; anchors as in the spin chain (frame 0, the latest
 corrected frames, a few older ones spread over the session), the matches gated by the previous frame's ω.
 Frames without an estimate interpolate ω; ω is median-filtered over ``smooth`` frames; a correction above
-``max_deg`` anywhere is not applied (a lost track). Only ω changes; the spin and the translation are kept.
+``max_deg`` anywhere is not applied (a lost track). Only ω changes; the spin and the translation are kept. Only a model longer along its axis than across it is
+corrected (``prolate``): a model smeared by keyframes attached with wrong rotations is not an egg's shape, and the
+axis found on it is off.
 """
 
 from __future__ import annotations
@@ -39,6 +41,20 @@ class TiltResult:
     centre_O: np.ndarray  # (3,) the centre o in O
     votes: np.ndarray  # (N,) matches used by each frame's estimate (0: interpolated)
     rejected: bool = False  # the correction exceeded max_deg somewhere and was not applied
+
+
+def prolate(Q: np.ndarray, a: np.ndarray, c: np.ndarray) -> bool:
+    """True when the model points Q (M,3) reach farther along the axis (a, c) than across it (1st–99th percentile
+    extents; across: the larger of two perpendicular directions): an egg's axis is its long one, and the two weak
+    rotations the closure measures are about its short axes. A model built from keyframes attached with wrong
+    rotations is a smear shorter along the axis found on it than across (development eggs 522, 923: 0.83, 0.73;
+    the others 1.08–1.31), and its axis is 10° off: not corrected."""
+    from service.tracking.spin import _basis
+
+    a = a / np.linalg.norm(a)
+    d = Q - c
+    ext = [float(np.ptp(np.percentile(d @ e, [1, 99]))) for e in (a, *_basis(a))]
+    return ext[0] > max(ext[1], ext[2])
 
 
 def tilt_matrix(omega: np.ndarray, o: np.ndarray) -> np.ndarray:

@@ -877,14 +877,16 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
 def _spin_tilt(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, spin: "SpinResult", cfg: TrackingConfig
                ) -> "TiltResult | None":
     """``tilt.tilt_closure`` with the tracker's settings, applied to X (N,4,4) in place, when the spin closure found
-    an egg-like body (its axis from the radius profile: the eigen-axis failed the separation test) and applied its
-    correction; None otherwise."""
+    an egg-like body (its axis from the radius profile: the eigen-axis failed the separation test), applied its
+    correction, and the model is longer along that axis than across it (``tilt.prolate``); None otherwise."""
     from service.tracking.spin import revolution_axis
-    from service.tracking.tilt import apply_tilt, tilt_closure
+    from service.tracking.tilt import apply_tilt, prolate, tilt_closure
 
     if spin is None or not spin.is_revolution or spin.rejected or not spin.observable:
         return None
     if revolution_axis(model.Q, model.N, cfg.spin_tau, cfg.spin_sep)[0]:  # one clearly weakest rotation: a bottle
+        return None
+    if not prolate(model.Q, spin.axis_O, spin.point_O):
         return None
     empty = (np.zeros((0, 3)), None)
     feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]

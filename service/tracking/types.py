@@ -370,9 +370,10 @@ class TrackingConfig:
     resettle_rest_dist: float = 0.005
     # egg-like bodies (the spin axis found by its radius profile: every rotation about the centre weak): after the
     # spin closure, the rotations about the two short axes re-estimated from interior keypoints matched to frame 0
-    # and earlier corrected frames, in the frames whose spin the texture measured (service.tracking.tilt; needs
-    # spin_closure; docs/tracking.md "Tilt closure of egg-like bodies")
-    spin_tilt: bool = False  # development eggs: 512 7.31 -> 5.54 deg median, 922 17.05 -> 14.39; 522, 923 worse
+    # and earlier corrected frames, in the frames whose spin the texture measured, when the model is longer along
+    # its axis than across (service.tracking.tilt; only with spin_closure on; docs/tracking.md "Tilt closure of egg-like
+    # bodies")
+    spin_tilt: bool = True  # development eggs 512 7.31 -> 5.54 deg median, 922 17.05 -> 14.39, 924 3.23 -> 1.54
 
     def __post_init__(self) -> None:
         for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
@@ -442,8 +443,6 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.mask_trim_min must be in [0, 1], not {self.mask_trim_min!r}")
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
-        if self.spin_tilt and not self.spin_closure:
-            raise ValueError("TrackingConfig.spin_tilt needs spin_closure (the tilt is closed after the spin)")
         if self.spin_roll and self.spin_solver != "mixed":
             raise ValueError(f"TrackingConfig.spin_roll needs spin_solver 'mixed', not {self.spin_solver!r}")
         if not 0 < self.spin_roll_tilt_deg < 90:

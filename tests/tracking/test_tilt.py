@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from service.tracking.tilt import apply_tilt, tilt_closure
+from service.tracking.tilt import apply_tilt, prolate, tilt_closure
 from service.tracking.types import TrackingConfig
 from service.transforms import make_X, rotation_angle, so3_exp
 
@@ -80,7 +80,16 @@ def test_textureless_unchanged():
     assert np.all(res.omega == 0)
 
 
-def test_config_needs_spin_closure():
+def test_config():
+    assert TrackingConfig().spin_tilt  # on by default (docs/tracking.md "Tilt closure of egg-like bodies")
+    assert not TrackingConfig(spin_closure=False).spin_closure  # no effect without the spin closure, no error
     with pytest.raises(ValueError, match="spin_tilt"):
-        TrackingConfig(spin_tilt=True, spin_closure=False)
-    assert TrackingConfig(spin_tilt=True).spin_tilt
+        TrackingConfig(spin_tilt="no")
+
+
+def test_prolate():
+    rng = np.random.default_rng(6)
+    Q = _egg_points(rng)
+    assert prolate(Q, A_AX, np.zeros(3))
+    assert not prolate(Q, np.array([0.0, 1.0, 0.0]), np.zeros(3))  # a short axis
+    assert not prolate(Q * np.array([0.6, 1.0, 1.0]), A_AX, np.zeros(3))  # shorter along the axis than across
