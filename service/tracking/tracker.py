@@ -64,6 +64,7 @@ from service.transforms import X_inv, make_X, pose_distance, so3_exp, so3_log
 
 if TYPE_CHECKING:
     from service.tracking.spin import SpinResult
+    from service.tracking.tilt import TiltResult
 
 Progress = Callable[[float, str], None] | None
 
@@ -335,6 +336,7 @@ class TrackResult:
     landings: list = field(default_factory=list)  # resettle.Landing of
     # every topple landing joined (cfg.resettle: X_new the join; score_old / score_new the fractions of the pre-fall
     # model the frame sees through at the tracked / joined pose)
+    tilt: "TiltResult | None" = None  # tilt closure of an egg-like body (cfg.spin_tilt)
 
 
 def track(session, cfg: TrackingConfig, progress: Progress = None) -> TrackResult:
@@ -570,14 +572,16 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 def sil0(r: IcpResult, m: ObjectModel) -> IcpResult:
                     return _sil_refine(session, 0, o0.P_W, r, m, _sil_model(m, keyframes, rims, cfg), cfg)
             model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw, obs, tracked, session, sil0)
-    spin = None
+    spin = tilt = None
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
         spin = _spin_closure(obs, X, model, cfg, session.table_height if cfg.spin_roll else None)
+        if cfg.spin_tilt:
+            tilt = _spin_tilt(obs, X, model, spin, cfg)
         if cfg.lie_level:  # a lying body of revolution: axis parallel to the table (service.tracking.lying)
             _level_lying(X, model, spin, session.table_height, cfg)
     X = interpolate_untracked(X, tracked)
-    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings)
+    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings, tilt)
 
 
 def _final_from_neighbors(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
@@ -833,6 +837,16 @@ def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
             tracked[j] = best_ok
 
 
+def _spin_tau(model: ObjectModel, cfg: TrackingConfig) -> float:
+    """The threshold of the body-of-revolution test for this model: ``spin_tau``, raised just above the model's own
+    score when it covers only a part of a body of revolution (``spin.partial_tau``, with ``spin_arc_tau`` > 0)."""
+    if cfg.spin_arc_tau > 0:
+        from service.tracking.spin import partial_tau
+
+        return partial_tau(model.Q, model.N, cfg.spin_tau, cfg.spin_sep, cfg.spin_arc_tau)
+    return cfg.spin_tau
+
+
 def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig,
                   table_z: float | None = None) -> "SpinResult":
     """Re-estimate the spin about the symmetry axis of a body of revolution (``service.tracking.spin``) and apply
@@ -845,10 +859,7 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
     common = dict(tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
                   smooth=1 if cfg.spin_twist_smooth > 1 else cfg.spin_smooth,  # twist filtered instead (below)
                   match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)
-    if cfg.spin_arc_tau > 0:  # a body of revolution of which the model covers a part (spin.partial_tau)
-        from service.tracking.spin import partial_tau
-
-        common["tau"] = partial_tau(model.Q, model.N, cfg.spin_tau, cfg.spin_sep, cfg.spin_arc_tau)
+    common["tau"] = _spin_tau(model, cfg)
     graph = dict(gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
                  long_votes=cfg.spin_graph_long_votes)
     if cfg.spin_fall and cfg.spin_solver == "mixed" and table_z is None:  # the mixed estimate, no spin in topples
@@ -884,6 +895,28 @@ def _level_lying(X: np.ndarray, model: ObjectModel, spin: "SpinResult", table_z:
 
     X[:], _ = level_lying(X, model.Q, table_z, spin.axis_O, stand_deg=cfg.lie_level_stand_deg,
                           lie_deg=cfg.lie_level_deg, margin=cfg.lie_level_margin, max_deg=cfg.lie_level_max_deg)
+
+
+def _spin_tilt(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, spin: "SpinResult", cfg: TrackingConfig
+               ) -> "TiltResult | None":
+    """``tilt.tilt_closure`` with the tracker's settings, applied to X (N,4,4) in place, when the spin closure found
+    an egg-like body (its axis from the radius profile: the eigen-axis failed the separation test), applied its
+    correction, and the model is longer along that axis than across it (``tilt.prolate``); None otherwise."""
+    from service.tracking.spin import revolution_axis
+    from service.tracking.tilt import apply_tilt, prolate, tilt_closure
+
+    if spin is None or not spin.is_revolution or spin.rejected or not spin.observable:
+        return None
+    if revolution_axis(model.Q, model.N, _spin_tau(model, cfg), cfg.spin_sep)[0]:  # one clearly weakest rotation
+        return None
+    if not prolate(model.Q, spin.axis_O, spin.point_O):
+        return None
+    empty = (np.zeros((0, 3)), None)
+    feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
+    res = tilt_closure(feats, X, model.Q, spin.axis_O, spin.point_O, match=_match, voted=spin.votes > 0,
+                       tol=cfg.spin_tol, min_votes=cfg.spin_min_votes, smooth=cfg.spin_smooth)
+    X[:] = apply_tilt(X, res)
+    return res
 
 
 def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, common: dict, graph: dict):

@@ -389,6 +389,12 @@ class TrackingConfig:
     # by the surface as a fraction of the arc each point moves), and its radius profile fits within 2 mm
     # (spin.partial_tau; 0: off; docs/tracking.md "Bodies of revolution seen in part")
     spin_arc_tau: float = 0.08  # development partial bottle pivots 940, 941, 943, 944: worst 6.2-7.8 -> 2.5-3.4 deg
+    # egg-like bodies (the spin axis found by its radius profile: every rotation about the centre weak): after the
+    # spin closure, the rotations about the two short axes re-estimated from interior keypoints matched to frame 0
+    # and earlier corrected frames, in the frames whose spin the texture measured, when the model is longer along
+    # its axis than across (service.tracking.tilt; only with spin_closure on; docs/tracking.md "Eggs: where the error comes
+    # from"; the evaluation sessions, egg 707 included, identical bit for bit)
+    spin_tilt: bool = True  # development eggs 512 7.31 -> 5.54 deg median, 922 17.05 -> 14.39, 924 3.23 -> 1.54
 
     def __post_init__(self) -> None:
         for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
