@@ -157,6 +157,16 @@ def synthetic(args) -> None:
                 own = (f"; {key} fitted {json.dumps({k: round(v, 4) for k, v in c.params.items()})}, its frames "
                        f"{c.heldout_error_before * 1e3:.2f} -> {c.heldout_error_after * 1e3:.2f} mm, "
                        f"{c.reason.split(';')[0]} ({c.reason.split(';', 1)[-1].strip()})")
+                fm = out.by_mode.get("refit", {}).get("effects", {}).get(key, {}).get("fold_mean")
+                if fm:  # cross-fitting: the reported value is the refit on all units; the fold mean for comparison
+                    own += f"; fold mean {json.dumps({k: round(v, 4) for k, v in fm.items()})}"
+                # held-out position error by mode before -> after (the tests' "error where the effect acts")
+                rb, ra = out.by_mode["rollout_before"], out.by_mode["rollout_after"]
+                own += "; by mode " + ", ".join(
+                    f"{m} {rb[m]['pos_err_m'] * 1e3:.2f} -> {ra[m]['pos_err_m'] * 1e3:.2f} mm"
+                    for m in ("free_flight", "sliding", "rest", "impact") if rb.get(m, {}).get("frames"))
+                own += (f"; rotation {out.error_before['rot_err_deg']:.3f} -> {out.error_after['rot_err_deg']:.3f} deg"
+                        f" (after/before {out.error_after['rot_err_deg'] / out.error_before['rot_err_deg']:.2f})")
             print(f"hidden {json.dumps(hidden):28s} seed {seed}: accepted {list(out.accepted)} {json.dumps(out.effects)} "
                   f"held-out {out.error_before['scalar_m'] * 1e3:.3f} -> {out.error_after['scalar_m'] * 1e3:.3f} mm "
                   f"(position {out.error_before['pos_err_m'] * 1e3:.3f} -> {out.error_after['pos_err_m'] * 1e3:.3f} mm, "
@@ -431,7 +441,7 @@ def main() -> None:
     s = sub.add_parser("synthetic")
     s.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5])
     s.add_argument("--cases", nargs="+", default=None,
-                   help="subset of: none gravity_scale restitution table_offset linear_damping")
+                   help="subset of: none gravity_scale restitution table_offset linear_damping angular_damping")
     s.add_argument("--no-pushing", action="store_true")
     lb = sub.add_parser("lab")
     lb.add_argument("--seeds", type=int, nargs="+", default=[601, 602])
