@@ -368,6 +368,13 @@ class TrackingConfig:
     # the table (resettle.rest_offsets: a settled object rests on the table; 0: off)
     resettle_rest_deg: float = 0.0  # 3: development 840 4.65 -> 1.32 deg median, 861 6.97 -> 1.78 deg (3.67 -> 9.49 mm)
     resettle_rest_dist: float = 0.005
+    # the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass): the face
+    # of the pre-fall model that lies on the table at the settled frame (resettle.landed_face) is laid flush with the
+    # table in every frame of the stretch whose pose has it within resettle_flush_deg of flat (resettle.flush_pose:
+    # an object at rest on a face has it on the table; two tilts and the height), the stretch's keyframes moved with
+    # their frames and the model rebuilt, then each frame re-registered in the motions that keep it resting (a turn
+    # about the vertical and a horizontal shift, resettle.planar_register; 0: off)
+    resettle_flush_deg: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
@@ -458,6 +465,8 @@ class TrackingConfig:
         if not (self.resettle_rest_deg >= 0 and self.resettle_rest_dist > 0):
             raise ValueError(f"TrackingConfig.resettle_rest_deg must be >= 0 and resettle_rest_dist > 0, not "
                              f"{self.resettle_rest_deg!r}, {self.resettle_rest_dist!r}")
+        if not 0.0 <= self.resettle_flush_deg < 90.0:
+            raise ValueError(f"TrackingConfig.resettle_flush_deg must be in [0, 90), not {self.resettle_flush_deg!r}")
         for name in ("resettle_path_deg", "resettle_path_dist", "resettle_path_step_deg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, not {getattr(self, name)!r}")
