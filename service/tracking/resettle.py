@@ -514,3 +514,24 @@ def planar_register(P_W: np.ndarray, X: np.ndarray, Q_O: np.ndarray, N_O: np.nda
     S = make_X(np.array([[cs, -sn, 0.0], [sn, cs, 0.0], [0.0, 0.0, 1.0]]), np.zeros(3))
     S[:3, 3] = c - S[:3, :3] @ c + np.array([d[0], d[1], 0.0])
     return X_inv(S) @ X
+
+
+def side_pose(X: np.ndarray, Q_O: np.ndarray, base_n_O: np.ndarray, tol: float = 0.01) -> tuple[np.ndarray, float]:
+    """Pose X (4,4) turned by the least rotation that makes the base normal ``base_n_O`` (3,) (in O: the face the
+    object stood on at frame 0) horizontal, about the centroid of the model's points Q_O (M,3) within ``tol`` of its
+    lowest point at X (the contact with the table): a prism lying on a side has its base vertical. Used when the face
+    it lies on was never seen (``landed_face`` None), so only the tilt that turns the base is known. Returns (the
+    pose, the tilt removed in degrees)."""
+    R, t = X[:3, :3], X[:3, 3]
+    a = R @ (base_n_O / np.linalg.norm(base_n_O))
+    b = np.array([a[0], a[1], 0.0])
+    if np.linalg.norm(b) < 1e-9:
+        return X.copy(), 90.0
+    b /= np.linalg.norm(b)
+    v = np.cross(a, b)
+    s = float(np.linalg.norm(v))
+    ang = float(np.arctan2(s, a @ b))
+    Rc = so3_exp(v / s * ang) if s > 1e-12 else np.eye(3)
+    P = Q_O @ R.T + t
+    c = P[P[:, 2] < P[:, 2].min() + tol].mean(0)
+    return make_X(Rc @ R, c + Rc @ (t - c)), float(np.degrees(ang))

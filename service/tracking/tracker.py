@@ -562,8 +562,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             _final_from_neighbors(session, obs, X, tracked, frac, rmse, model, cfg, icp_kw)
         if cfg.resettle_path and any(ld.adopted for ld in landings):  # fall frames off the tipping path
             _resettle_path(session, obs, X, tracked, frac, rmse, model, keyframes, landings, cfg)
-        if cfg.resettle_flush_deg > 0 and landings:  # the settled stretch flush with the table, re-registered
-            model = _resettle_flush(session, obs, X, tracked, frac, rmse, keyframes, carver, landings, cfg) or model
         if cfg.regauge_frame0:
             from dataclasses import replace as _replace
 
@@ -573,6 +571,9 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 def sil0(r: IcpResult, m: ObjectModel) -> IcpResult:
                     return _sil_refine(session, 0, o0.P_W, r, m, _sil_model(m, keyframes, rims, cfg), cfg)
             model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw, obs, tracked, session, sil0)
+        if cfg.resettle_flush_deg > 0 and landings:  # the settled stretch flush with the table, re-registered (after the
+            # gauge: the base the object stood on is -z in the final O)
+            model = _resettle_flush(session, obs, X, tracked, frac, rmse, keyframes, carver, landings, cfg) or model
     spin = None
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
@@ -809,16 +810,17 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
                     cfg: TrackingConfig) -> ObjectModel | None:
     """The settled stretch after every topple landing checked (``_resettle_check``, adopted or not): from its
     settled frame i up to the next landing's fall. The face of the pre-fall model (keyframes before the fall) that
-    lies on the table at X[i] (``resettle.landed_face``; with ``resettle_square_deg`` made square to the base the
-    object stood on at frame 0) is laid flush with the table (``resettle.flush_pose``) in every frame of the stretch
-    whose pose has it within ``resettle_flush_deg`` of flat (an object at rest on a face has it on the table); the
+    lies on the table at X[i] (``resettle.landed_face``; within ``resettle_flush_square_deg`` made square to the base
+    the object stood on at frame 0) is laid flush with the table (``resettle.flush_pose``) in every frame of the stretch
+    whose pose has it within ``resettle_flush_deg`` of flat (an object at rest on a face has it on the table; when
+    the pre-fall model has no such face, only the base it stood on is made vertical, ``resettle.side_pose``); the
     stretch's keyframes move with their frames and the model is rebuilt (the surface seen after the landing placed by
     the constrained poses); then every such frame is registered again in the motions that keep it resting
     (``resettle.planar_register``: a turn about the vertical and a horizontal shift) and counts as tracked when that
     is a good registration. Updates X, tracked, frac, rmse, keyframes and carver in place; returns the rebuilt model,
     or None when no frame changed."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import flush_pose, landed_face, planar_register
+    from service.tracking.resettle import flush_pose, landed_face, planar_register, side_pose
 
     base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
     done: list[int] = []
@@ -830,14 +832,14 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
             continue
         M = _model_from(pre, cfg.model_voxel)
         face = landed_face(M.Q, M.N, X[i], session.table_height, tol=0.03, base_n_O=base_n,
-                           square_deg=cfg.resettle_square_deg)
-        if face is None:
-            continue
-        F, n = face
+                           square_deg=cfg.resettle_flush_square_deg)
         for j in range(i, end):
             if not tracked[j] or len(obs[j].P_W) < cfg.min_points:
                 continue
-            Xf, tilt = flush_pose(X[j], F, n, session.table_height)
+            if face is not None:
+                Xf, tilt = flush_pose(X[j], face[0], face[1], session.table_height)
+            else:  # the face it lies on was never seen: only its base, vertical on a side
+                Xf, tilt = side_pose(X[j], M.Q, base_n)
             if tilt > cfg.resettle_flush_deg:
                 continue  # not resting on that face
             X[j] = Xf
@@ -854,7 +856,7 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
             if carver is not None:
                 carver.update_pose(kf.index, kf.X_WO)
     model = _model_from(keyframes, cfg.model_voxel)
-    for j in done:
+    for j in done if cfg.resettle_flush_planar else []:
         Xp = planar_register(obs[j].P_W, X[j], model.Q, model.N, model.tree)
         r = icp_result(X_inv(Xp), obs[j].P_W, model.tree, model.Q, model.N, cfg.inlier_dist)
         X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse

@@ -287,4 +287,4 @@ def test_flush_deg_validated():
 
     with pytest.raises(ValueError, match="resettle_flush_deg"):
         TrackingConfig(resettle_flush_deg=-1.0)
-    assert TrackingConfig().resettle_flush_deg == 0.0
+    assert TrackingConfig().resettle_flush_deg == 10.0
