@@ -41,6 +41,13 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    the join lays on the table (``rest_offsets``); after the final pass the fall's frames that are lost, inconsistent,
    or off the turn about the leading bottom edge between the last pose before the fall and the join (``tip_path``,
    ``leading_pivot``) take the path pose their points fit best (``path_fit``; ``tracker._resettle_path``).
+6. After the gauge (``tracker._resettle_flush``, ``resettle_flush_deg``): in the settled stretch of every landing
+   checked (adopted or not) the face of the pre-fall model lying on the table (``landed_face``, its normal squared to
+   the base the object stood on) is laid flush with the table (``flush_pose``: an object at rest on a face has it on
+   the table; two tilts and the height), or, when that face was never seen, the base is made vertical
+   (``side_pose``); the stretch's keyframes move with their frames, the model is rebuilt and every frame is
+   registered again in the motions that keep it resting (``planar_register``: a turn about the vertical, a
+   horizontal shift).
 What is left: the join is 0.5–2° off (a yaw the table does not fix) and up to 9 mm sideways; the base test is a lower bound of the slide
 along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile

@@ -26,7 +26,9 @@ replaces a track far from it a few frames after the landing, the settled frame a
 is no longer where the settled frames see the table (``resettle_refine_frames``); the leading face is made square to
 the base the object stood on (``resettle_square_deg``, off), a join near a track that does not rest on the table is
 adopted too (``resettle_rest_deg``, off), and fall frames off the turn about the leading bottom edge take the path
-pose their points fit (``resettle_path``, off).
+pose their points fit (``resettle_path``, off). After the gauge, the settled stretch of every landing checked is laid
+flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
+registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
 normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
 or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,

@@ -374,7 +374,7 @@ class TrackingConfig:
     # an object at rest on a face has it on the table; two tilts and the height), the stretch's keyframes moved with
     # their frames and the model rebuilt, then each frame re-registered in the motions that keep it resting (a turn
     # about the vertical and a horizontal shift, resettle.planar_register; 0: off)
-    resettle_flush_deg: float = 10.0  # on: development topples 8 of 8 lower median rotation (docs/tracking.md)
+    resettle_flush_deg: float = 10.0  # on: development topples: 7 of 7 lower median rotation (docs/tracking.md)
     # the landed face's fitted normal made square to the base the object stood on at frame 0 when within
     # resettle_flush_square_deg of it (a side of a prism standing on its base; 0: the fitted normal as it is)
     resettle_flush_square_deg: float = 5.0
