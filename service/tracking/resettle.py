@@ -542,3 +542,17 @@ def side_pose(X: np.ndarray, Q_O: np.ndarray, base_n_O: np.ndarray, tol: float =
     P = Q_O @ R.T + t
     c = P[P[:, 2] < P[:, 2].min() + tol].mean(0)
     return make_X(Rc @ R, c + Rc @ (t - c)), float(np.degrees(ang))
+
+
+def has_flat_side(Q_O: np.ndarray, N_O: np.ndarray, base_n_O: np.ndarray) -> bool:
+    """Whether the model (Q_O, N_O (M,3)) has a flat face (``face_plane``) among its sides, the normals within 17° of
+    perpendicular to the base normal ``base_n_O`` (3,): a prism, whose base stands vertical when it lies on a side
+    (not a curved body such as an egg)."""
+    b = base_n_O / np.linalg.norm(base_n_O)
+    side = np.abs(N_O @ b) < 0.3
+    if side.sum() < 30:
+        return False
+    S = N_O[side]
+    sub = S[:: max(1, len(S) // 300)]
+    d = sub[int(np.argmax([(S @ s > np.cos(np.radians(20.0))).sum() for s in sub]))]
+    return face_plane(Q_O, N_O, d, np.cos(np.radians(30.0)), 0.03) is not None

@@ -288,3 +288,20 @@ def test_flush_deg_validated():
     with pytest.raises(ValueError, match="resettle_flush_deg"):
         TrackingConfig(resettle_flush_deg=-1.0)
     assert TrackingConfig().resettle_flush_deg == 10.0
+
+
+def test_no_flush_face_on_a_curved_body():
+    """An egg-sized ellipsoid has no flat side (so its settled stretch is left as it is); a box has."""
+    from service.tracking.resettle import has_flat_side, landed_face
+
+    rng = np.random.default_rng(5)
+    u = rng.normal(size=(6000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    a = np.array([0.0325, 0.0325, 0.045])
+    P = u * a
+    N = u / a
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    assert not has_flat_side(P, N, np.array([0.0, 0.0, -1.0]))
+    Q, Nb = box_faces(step=0.004)
+    assert has_flat_side(Q, Nb, np.array([0.0, 0.0, -1.0]))
+    assert landed_face(Q, Nb, settled_truth(make_X(np.eye(3), np.array([0.5, 0.0, SIZE[2] / 2])), 0.0), 0.0) is not None
