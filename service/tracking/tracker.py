@@ -816,14 +816,15 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
     the object stood on at frame 0) is laid flush with the table (``resettle.flush_pose``) in every frame of the stretch
     whose pose has it within ``resettle_flush_deg`` of flat (an object at rest on a face has it on the table; when
     the pre-fall model has no such face, only the base it stood on is made vertical, ``resettle.side_pose``; a body
-    without a flat side, ``resettle.has_flat_side``, such as an egg, is left as it is); the
+    with neither a flat side, ``resettle.has_flat_side``, nor a flat face where it lies, ``resettle.face_plane``, such
+    as an egg, is left as it is); the
     stretch's keyframes move with their frames and the model is rebuilt (the surface seen after the landing placed by
     the constrained poses); then every such frame is registered again in the motions that keep it resting
     (``resettle.planar_register``: a turn about the vertical and a horizontal shift) and counts as tracked when that
     is a good registration. Updates X, tracked, frac, rmse, keyframes and carver in place; returns the rebuilt model,
     or None when no frame changed."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import flush_pose, has_flat_side, landed_face, planar_register, side_pose
+    from service.tracking.resettle import face_plane, flush_pose, has_flat_side, landed_face, planar_register, side_pose
 
     base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
     done: list[int] = []
@@ -834,7 +835,8 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
         if not pre or not tracked[i]:
             continue
         M = _model_from(pre, cfg.model_voxel)
-        if not has_flat_side(M.Q, M.N, base_n):
+        down = X[i][:3, :3].T @ np.array([0.0, 0.0, -1.0])  # the face it lies on, in O
+        if not (has_flat_side(M.Q, M.N, base_n) or face_plane(M.Q, M.N, down, np.cos(np.radians(30.0)), 0.03)):
             continue  # a curved body (an egg): no flat face to rest on
         face = landed_face(M.Q, M.N, X[i], session.table_height, tol=0.03, base_n_O=base_n,
                            square_deg=cfg.resettle_flush_square_deg)

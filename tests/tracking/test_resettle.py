@@ -291,8 +291,9 @@ def test_flush_deg_validated():
 
 
 def test_no_flush_face_on_a_curved_body():
-    """An egg-sized ellipsoid has no flat side (so its settled stretch is left as it is); a box has."""
-    from service.tracking.resettle import has_flat_side, landed_face
+    """An egg-sized ellipsoid has no flat side and no flat face where it lies (so its settled stretch is left as it
+    is); a box has both."""
+    from service.tracking.resettle import face_plane, has_flat_side, landed_face
 
     rng = np.random.default_rng(5)
     u = rng.normal(size=(6000, 3))
@@ -302,6 +303,7 @@ def test_no_flush_face_on_a_curved_body():
     N = u / a
     N /= np.linalg.norm(N, axis=1, keepdims=True)
     assert not has_flat_side(P, N, np.array([0.0, 0.0, -1.0]))
+    assert face_plane(P, N, np.array([0.0, 1.0, 0.0]), np.cos(np.radians(30.0)), 0.03) is None  # lying on its side
     Q, Nb = box_faces(step=0.004)
     assert has_flat_side(Q, Nb, np.array([0.0, 0.0, -1.0]))
     assert landed_face(Q, Nb, settled_truth(make_X(np.eye(3), np.array([0.5, 0.0, SIZE[2] / 2])), 0.0), 0.0) is not None
