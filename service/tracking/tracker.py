@@ -828,7 +828,7 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
 
     base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
     done: list[int] = []
-    for k, ld in enumerate(landings):
+    for ld in landings:
         i = ld.i
         end = min([l.g0 for l in landings if l.g0 > i], default=len(X))
         pre = [kf for kf in keyframes if kf.index < ld.g0]
