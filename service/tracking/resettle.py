@@ -41,6 +41,13 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    the join lays on the table (``rest_offsets``); after the final pass the fall's frames that are lost, inconsistent,
    or off the turn about the leading bottom edge between the last pose before the fall and the join (``tip_path``,
    ``leading_pivot``) take the path pose their points fit best (``path_fit``; ``tracker._resettle_path``).
+6. After the gauge (``tracker._resettle_flush``, ``resettle_flush_deg``): in the settled stretch of every landing
+   checked (adopted or not) the face of the pre-fall model lying on the table (``landed_face``, its normal squared to
+   the base the object stood on) is laid flush with the table (``flush_pose``: an object at rest on a face has it on
+   the table; two tilts and the height), or, when that face was never seen, the base is made vertical
+   (``side_pose``); the stretch's keyframes move with their frames, the model is rebuilt and every frame is
+   registered again in the motions that keep it resting (``planar_register``: a turn about the vertical, a
+   horizontal shift).
 What is left: the join is 0.5–2° off (a yaw the table does not fix) and up to 9 mm sideways; the base test is a lower bound of the slide
 along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
@@ -419,3 +426,133 @@ def pose_consistent(X_WO: np.ndarray, Q_O: np.ndarray, table_height: float, view
         if float(np.mean(view.seen_through(Q_O @ X_WO[:3, :3].T + X_WO[:3, 3]))) > seen_frac:
             return False
     return True
+
+
+def landed_face(Q_O: np.ndarray, N_O: np.ndarray, X: np.ndarray, table_height: float,
+                cos_min: float = np.cos(np.radians(30.0)), tol: float = 0.02, base_n_O: np.ndarray | None = None,
+                square_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray] | None:
+    """The face of the model (Q_O, N_O (M,3), in O) that lies on the table at pose X (4,4): the points with normals
+    within acos(cos_min) of −z and within ``tol`` of the table (at least 20; else None). Returns (its points (F,3)
+    in O, its outward unit normal (3,) in O: the smallest principal axis of the points, oriented like their normals).
+    With ``base_n_O`` (3,) and ``square_deg`` > 0, a normal within that angle of perpendicular to the base the object
+    stood on at frame 0 is made perpendicular (a side of a prism standing on its base)."""
+    Nw = N_O @ X[:3, :3].T
+    z = Q_O @ X[2, :3] + X[2, 3]
+    sel = (Nw[:, 2] < -cos_min) & (z < table_height + tol)
+    if sel.sum() < 20:
+        return None
+    F = Q_O[sel]
+    F = F[np.abs((F - np.median(F, 0)) @ N_O[sel].mean(0)) < 0.01]
+    if len(F) < 20:
+        return None
+    _, V = np.linalg.eigh(np.cov((F - F.mean(0)).T))
+    n = V[:, 0] * np.sign(V[:, 0] @ N_O[sel].mean(0))
+    if base_n_O is not None and square_deg > 0:
+        b = base_n_O / np.linalg.norm(base_n_O)
+        if abs(n @ b) < np.sin(np.radians(square_deg)):
+            n = n - (n @ b) * b
+            n /= np.linalg.norm(n)
+    return F, n
+
+
+def flush_pose(X: np.ndarray, F_O: np.ndarray, n_O: np.ndarray, table_height: float) -> tuple[np.ndarray, float]:
+    """Pose X (4,4) turned about the centroid of the face F_O (F,3) (in O, outward unit normal n_O (3,)) by the least
+    rotation that lays n_O on −z, then moved vertically so that the face's median height is the table's: an object at
+    rest on a flat face has that face flush with the table (two tilts and the height fixed; the yaw and the
+    horizontal position kept). Returns (the pose, the tilt removed in degrees)."""
+    R, t = X[:3, :3], X[:3, 3]
+    a = R @ n_O
+    b = np.array([0.0, 0.0, -1.0])
+    v = np.cross(a, b)
+    s = float(np.linalg.norm(v))
+    ang = float(np.arctan2(s, a @ b))
+    Rc = so3_exp(v / s * ang) if s > 1e-12 else np.eye(3)
+    c = (F_O @ R.T + t).mean(0)
+    R2 = Rc @ R
+    t2 = c + Rc @ (t - c)
+    t2[2] += table_height - float(np.median(F_O @ R2[2] + t2[2]))
+    return make_X(R2, t2), float(np.degrees(ang))
+
+
+def planar_register(P_W: np.ndarray, X: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, tree=None, iters: int = 12,
+                    dist0: float = 0.012, dist_min: float = 0.004, huber: float = 0.002,
+                    w_point: float = 0.05) -> np.ndarray:
+    """Pose X (4,4) of the model (Q_O, N_O (M,3)) refined by the frame's points P_W (N,3) in the motions that keep
+    an object resting on the table: a turn about the vertical and a horizontal shift (3 unknowns; the tilts and the
+    height stay). Robust point-to-plane residuals (Huber ``huber``) plus a small point-to-point term ``w_point``
+    against sliding along planes, correspondences within a radius shrinking from ``dist0`` to ``dist_min``; ``tree``:
+    a KD-tree over Q_O (built when None)."""
+    from scipy.spatial import cKDTree
+
+    if tree is None:
+        tree = cKDTree(Q_O)
+    R, t = X[:3, :3], X[:3, 3]
+    c = P_W.mean(0)
+    th, d = 0.0, np.zeros(2)
+    for k in range(iters):
+        rad = dist0 + (dist_min - dist0) * k / max(1, iters - 1)
+        cs, sn = np.cos(th), np.sin(th)
+        Rz = np.array([[cs, -sn, 0.0], [sn, cs, 0.0], [0.0, 0.0, 1.0]])
+        P = (P_W - c) @ Rz.T + c + np.array([d[0], d[1], 0.0])  # frame points moved onto the fixed model
+        dist, j = tree.query((P - t) @ R, distance_upper_bound=rad)  # in O
+        ok = np.isfinite(dist)
+        if ok.sum() < 10:
+            break
+        P, q, n = P[ok], Q_O[j[ok]] @ R.T + t, N_O[j[ok]] @ R.T
+        r = ((P - q) * n).sum(1)
+        w = np.where(np.abs(r) <= huber, 1.0, huber / np.maximum(np.abs(r), 1e-12))
+        dp = P - c - np.array([d[0], d[1], 0.0])  # the turn acts before the shift
+        J = np.column_stack([n[:, 1] * dp[:, 0] - n[:, 0] * dp[:, 1], n[:, 0], n[:, 1]])  # n · (e_z × dp), n_x, n_y
+        A = (J * w[:, None]).T @ J
+        g = (J * w[:, None]).T @ r
+        # point-to-point term (horizontal components)
+        e = (P - q)[:, :2]
+        Jp = np.stack([np.column_stack([-dp[:, 1], np.ones(len(dp)), np.zeros(len(dp))]),
+                       np.column_stack([dp[:, 0], np.zeros(len(dp)), np.ones(len(dp))])], 1)  # (K,2,3)
+        A += w_point * np.einsum("kai,kaj->ij", Jp, Jp)
+        g += w_point * np.einsum("kai,ka->i", Jp, e)
+        step = -np.linalg.solve(A + 1e-9 * np.eye(3), g)
+        th += step[0]
+        d += step[1:]
+        if abs(step[0]) < 1e-6 and np.linalg.norm(step[1:]) < 1e-6:
+            break
+    # frame points moved by S (turn th about c, shift d) fit the model at X: the object is at S⁻¹ X
+    cs, sn = np.cos(th), np.sin(th)
+    S = make_X(np.array([[cs, -sn, 0.0], [sn, cs, 0.0], [0.0, 0.0, 1.0]]), np.zeros(3))
+    S[:3, 3] = c - S[:3, :3] @ c + np.array([d[0], d[1], 0.0])
+    return X_inv(S) @ X
+
+
+def side_pose(X: np.ndarray, Q_O: np.ndarray, base_n_O: np.ndarray, tol: float = 0.01) -> tuple[np.ndarray, float]:
+    """Pose X (4,4) turned by the least rotation that makes the base normal ``base_n_O`` (3,) (in O: the face the
+    object stood on at frame 0) horizontal, about the centroid of the model's points Q_O (M,3) within ``tol`` of its
+    lowest point at X (the contact with the table): a prism lying on a side has its base vertical. Used when the face
+    it lies on was never seen (``landed_face`` None), so only the tilt that turns the base is known. Returns (the
+    pose, the tilt removed in degrees)."""
+    R, t = X[:3, :3], X[:3, 3]
+    a = R @ (base_n_O / np.linalg.norm(base_n_O))
+    b = np.array([a[0], a[1], 0.0])
+    if np.linalg.norm(b) < 1e-9:
+        return X.copy(), 90.0
+    b /= np.linalg.norm(b)
+    v = np.cross(a, b)
+    s = float(np.linalg.norm(v))
+    ang = float(np.arctan2(s, a @ b))
+    Rc = so3_exp(v / s * ang) if s > 1e-12 else np.eye(3)
+    P = Q_O @ R.T + t
+    c = P[P[:, 2] < P[:, 2].min() + tol].mean(0)
+    return make_X(Rc @ R, c + Rc @ (t - c)), float(np.degrees(ang))
+
+
+def has_flat_side(Q_O: np.ndarray, N_O: np.ndarray, base_n_O: np.ndarray) -> bool:
+    """Whether the model (Q_O, N_O (M,3)) has a flat face (``face_plane``) among its sides, the normals within 17° of
+    perpendicular to the base normal ``base_n_O`` (3,): a prism, whose base stands vertical when it lies on a side
+    (not a curved body such as an egg)."""
+    b = base_n_O / np.linalg.norm(base_n_O)
+    side = np.abs(N_O @ b) < 0.3
+    if side.sum() < 30:
+        return False
+    S = N_O[side]
+    sub = S[:: max(1, len(S) // 300)]
+    d = sub[int(np.argmax([(S @ s > np.cos(np.radians(20.0))).sum() for s in sub]))]
+    return face_plane(Q_O, N_O, d, np.cos(np.radians(30.0)), 0.03) is not None

@@ -26,7 +26,9 @@ replaces a track far from it a few frames after the landing, the settled frame a
 is no longer where the settled frames see the table (``resettle_refine_frames``); the leading face is made square to
 the base the object stood on (``resettle_square_deg``, off), a join near a track that does not rest on the table is
 adopted too (``resettle_rest_deg``, off), and fall frames off the turn about the leading bottom edge take the path
-pose their points fit (``resettle_path``, off).
+pose their points fit (``resettle_path``, off). After the gauge, the settled stretch of every landing checked is laid
+flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
+registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
 normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
 or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
@@ -572,6 +574,9 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 def sil0(r: IcpResult, m: ObjectModel) -> IcpResult:
                     return _sil_refine(session, 0, o0.P_W, r, m, _sil_model(m, keyframes, rims, cfg), cfg)
             model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw, obs, tracked, session, sil0)
+        if cfg.resettle_flush_deg > 0 and landings:  # the settled stretch flush with the table, re-registered (after the
+            # gauge: the base the object stood on is -z in the final O)
+            model = _resettle_flush(session, obs, X, tracked, frac, rmse, keyframes, carver, landings, cfg) or model
     spin = tilt = None
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
@@ -805,6 +810,70 @@ def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
             tracked[j] = _good(r, cfg)
             out.append((j, d_rot, d_t, True))
     return out
+
+
+def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
+                    rmse: np.ndarray, keyframes: list[Keyframe], carver: "FreeSpace | None", landings: list,
+                    cfg: TrackingConfig) -> ObjectModel | None:
+    """The settled stretch after every topple landing checked (``_resettle_check``, adopted or not): from its
+    settled frame i up to the next landing's fall. The face of the pre-fall model (keyframes before the fall) that
+    lies on the table at X[i] (``resettle.landed_face``; within ``resettle_flush_square_deg`` made square to the base
+    the object stood on at frame 0) is laid flush with the table (``resettle.flush_pose``) in every frame of the stretch
+    whose pose has it within ``resettle_flush_deg`` of flat (an object at rest on a face has it on the table; when
+    the pre-fall model has no such face, only the base it stood on is made vertical, ``resettle.side_pose``; a body
+    with neither a flat side, ``resettle.has_flat_side``, nor a flat face where it lies, ``resettle.face_plane``, such
+    as an egg, is left as it is); the
+    stretch's keyframes move with their frames and the model is rebuilt (the surface seen after the landing placed by
+    the constrained poses); then every such frame is registered again in the motions that keep it resting
+    (``resettle.planar_register``: a turn about the vertical and a horizontal shift) and counts as tracked when that
+    is a good registration. Updates X, tracked, frac, rmse, keyframes and carver in place; returns the rebuilt model,
+    or None when no frame changed."""
+    from service.tracking.geometry import icp_result
+    from service.tracking.resettle import face_plane, flush_pose, has_flat_side, landed_face, planar_register, side_pose
+
+    base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
+    done: list[int] = []
+    for ld in landings:
+        i = ld.i
+        end = min([l.g0 for l in landings if l.g0 > i], default=len(X))
+        pre = [kf for kf in keyframes if kf.index < ld.g0]
+        if not pre or not tracked[i]:
+            continue
+        M = _model_from(pre, cfg.model_voxel)
+        down = X[i][:3, :3].T @ np.array([0.0, 0.0, -1.0])  # the face it lies on, in O
+        if not (has_flat_side(M.Q, M.N, base_n) or face_plane(M.Q, M.N, down, np.cos(np.radians(30.0)), 0.03)):
+            continue  # a curved body (an egg): no flat face to rest on
+        face = landed_face(M.Q, M.N, X[i], session.table_height, tol=0.03, base_n_O=base_n,
+                           square_deg=cfg.resettle_flush_square_deg)
+        for j in range(i, end):
+            if not tracked[j] or len(obs[j].P_W) < cfg.min_points:
+                continue
+            if face is not None:
+                Xf, tilt = flush_pose(X[j], face[0], face[1], session.table_height)
+            else:  # the face it lies on was never seen: only its base, vertical on a side
+                Xf, tilt = side_pose(X[j], M.Q, base_n)
+            if tilt > cfg.resettle_flush_deg:
+                continue  # not resting on that face
+            X[j] = Xf
+            done.append(j)
+    if not done:
+        return None
+    moved = set(done)
+    for kf in keyframes:
+        if kf.index in moved:
+            kf.X_WO = X[kf.index].copy()
+            X_OW = X_inv(kf.X_WO)
+            kf.P_O = kf.P_W @ X_OW[:3, :3].T + X_OW[:3, 3]
+            kf.kp_O = kf.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3]
+            if carver is not None:
+                carver.update_pose(kf.index, kf.X_WO)
+    model = _model_from(keyframes, cfg.model_voxel)
+    for j in done if cfg.resettle_flush_planar else []:
+        Xp = planar_register(obs[j].P_W, X[j], model.Q, model.N, model.tree)
+        r = icp_result(X_inv(Xp), obs[j].P_W, model.tree, model.Q, model.N, cfg.inlier_dist)
+        X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse
+        tracked[j] = _good(r, cfg)
+    return model
 
 
 def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,

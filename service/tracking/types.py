@@ -395,6 +395,18 @@ class TrackingConfig:
     # its axis than across (service.tracking.tilt; only with spin_closure on; docs/tracking.md "Eggs: where the error comes
     # from"; the evaluation sessions, egg 707 included, identical bit for bit)
     spin_tilt: bool = True  # development eggs 512 7.31 -> 5.54 deg median, 922 17.05 -> 14.39, 924 3.23 -> 1.54
+    # the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass): the face
+    # of the pre-fall model that lies on the table at the settled frame (resettle.landed_face) is laid flush with the
+    # table in every frame of the stretch whose pose has it within resettle_flush_deg of flat (resettle.flush_pose:
+    # an object at rest on a face has it on the table; two tilts and the height), the stretch's keyframes moved with
+    # their frames and the model rebuilt, then each frame re-registered in the motions that keep it resting (a turn
+    # about the vertical and a horizontal shift, resettle.planar_register; 0: off)
+    resettle_flush_deg: float = 10.0  # on: development topples: 7 of 7 lower median rotation (docs/tracking.md)
+    # the landed face's fitted normal made square to the base the object stood on at frame 0 when within
+    # resettle_flush_square_deg of it (a side of a prism standing on its base; 0: the fitted normal as it is)
+    resettle_flush_square_deg: float = 5.0
+    # the second pass over the flushed stretch (resettle.planar_register) on or off (the poses only laid flush)
+    resettle_flush_planar: bool = True
 
     def __post_init__(self) -> None:
         for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
@@ -485,6 +497,9 @@ class TrackingConfig:
         if not (self.resettle_rest_deg >= 0 and self.resettle_rest_dist > 0):
             raise ValueError(f"TrackingConfig.resettle_rest_deg must be >= 0 and resettle_rest_dist > 0, not "
                              f"{self.resettle_rest_deg!r}, {self.resettle_rest_dist!r}")
+        for name in ("resettle_flush_deg", "resettle_flush_square_deg"):
+            if not 0.0 <= getattr(self, name) < 90.0:
+                raise ValueError(f"TrackingConfig.{name} must be in [0, 90), not {getattr(self, name)!r}")
         for name in ("resettle_path_deg", "resettle_path_dist", "resettle_path_step_deg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, not {getattr(self, name)!r}")

@@ -236,3 +236,74 @@ def test_pose_consistent_rejects_a_pose_through_the_table():
     Q = _box_surface(h)
     assert pose_consistent(_tipped(90.0, h), Q, 0.0, None, 0.01, 0.02, 0.05)
     assert not pose_consistent(_tipped(110.0, h), Q, 0.0, None, 0.01, 0.02, 0.05)
+
+
+def test_landed_face_flush_and_planar_registration():
+    """A lying carton whose pose is tilted 2°/1.5° and lifted 4 mm is laid flush with the table: the tilts and height
+    removed, the yaw and horizontal position kept; a 3° yaw and a 5 mm horizontal offset are then removed by the
+    registration of its visible points in the motions of an object resting on the table; a 30° tilt is reported as
+    such (not resting on that face)."""
+    from service.tracking.resettle import flush_pose, landed_face, planar_register
+
+    rng = np.random.default_rng(3)
+    Q, N = box_faces(step=0.004)
+    X_r = make_X(np.eye(3), np.array([0.5, 0.0, SIZE[2] / 2]))
+    X_t = settled_truth(X_r, 0.0)
+    X_t = make_X(so3_exp(np.array([0.0, 0.0, 0.5])) @ X_t[:3, :3], X_t[:3, 3])  # some yaw
+    tilt = make_X(so3_exp(np.array([np.radians(2.0), np.radians(-1.5), 0.0])), np.array([0.0, 0.0, 0.004]))
+    X_bad = tilt @ X_t
+    face = landed_face(Q, N, X_bad, 0.0, base_n_O=np.array([0.0, 0.0, -1.0]), square_deg=5.0)
+    assert face is not None
+    F, n = face
+    assert np.allclose(n, [0.0, 1.0, 0.0], atol=1e-6)  # the +y side, on which the carton fell
+    X_f, ang = flush_pose(X_bad, F, n, 0.0)
+    assert abs(ang - np.hypot(2.0, 1.5)) < 0.05
+    assert np.allclose(X_f[:3, :3] @ n, [0.0, 0.0, -1.0], atol=1e-9)
+    d_t, d_r = pose_distance(X_f, X_t)
+    assert d_r < 0.05 and d_t < 0.003 and abs(X_f[2, 3] - X_t[2, 3]) < 1e-4
+    _, big = flush_pose(make_X(so3_exp(np.array([np.radians(30.0), 0.0, 0.0])), np.zeros(3)) @ X_t, F, n, 0.0)
+    assert abs(big - 30.0) < 0.1
+    # visible points of the lying box (not its face on the table), noisy
+    P = Q @ X_t[:3, :3].T + X_t[:3, 3]
+    P = P[P[:, 2] > 0.003]
+    P = P[rng.choice(len(P), 900, replace=False)] + rng.normal(0.0, 0.0008, (900, 3))
+    off = make_X(so3_exp(np.array([0.0, 0.0, np.radians(3.0)])), np.array([0.004, -0.003, 0.0]))
+    X_0 = X_t.copy()
+    X_0[:3, :3] = off[:3, :3] @ X_t[:3, :3]
+    X_0[:3, 3] = X_t[:3, 3] + off[:3, 3]
+    d_t0, d_r0 = pose_distance(X_0, X_t)
+    X_p = planar_register(P, X_0, Q, N)
+    d_t1, d_r1 = pose_distance(X_p, X_t)
+    assert d_r0 > 2.9 and d_t0 > 0.004
+    assert d_r1 < 0.3 and d_t1 < 0.0015
+    assert abs(X_p[2, 3] - X_0[2, 3]) < 1e-12  # the height and the tilts are kept
+    assert np.allclose(X_p[:3, 2] @ [0.0, 0.0, 1.0], X_0[:3, 2] @ [0.0, 0.0, 1.0], atol=1e-12)
+
+
+def test_flush_deg_validated():
+    import pytest
+
+    from service.tracking import TrackingConfig
+
+    with pytest.raises(ValueError, match="resettle_flush_deg"):
+        TrackingConfig(resettle_flush_deg=-1.0)
+    assert TrackingConfig().resettle_flush_deg == 10.0
+
+
+def test_no_flush_face_on_a_curved_body():
+    """An egg-sized ellipsoid has no flat side and no flat face where it lies (so its settled stretch is left as it
+    is); a box has both."""
+    from service.tracking.resettle import face_plane, has_flat_side, landed_face
+
+    rng = np.random.default_rng(5)
+    u = rng.normal(size=(6000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    a = np.array([0.0325, 0.0325, 0.045])
+    P = u * a
+    N = u / a
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    assert not has_flat_side(P, N, np.array([0.0, 0.0, -1.0]))
+    assert face_plane(P, N, np.array([0.0, 1.0, 0.0]), np.cos(np.radians(30.0)), 0.03) is None  # lying on its side
+    Q, Nb = box_faces(step=0.004)
+    assert has_flat_side(Q, Nb, np.array([0.0, 0.0, -1.0]))
+    assert landed_face(Q, Nb, settled_truth(make_X(np.eye(3), np.array([0.5, 0.0, SIZE[2] / 2])), 0.0), 0.0) is not None
