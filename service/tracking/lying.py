@@ -31,19 +31,14 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def _plane_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Two unit vectors (3,) spanning the plane perpendicular to the unit vector a (3,)."""
-    e1 = np.cross(a, [1.0, 0.0, 0.0] if abs(a[0]) < 0.9 else [0.0, 1.0, 0.0])
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(a, e1)
+from service.tracking.spin import plane_basis
 
 
 def axis_centre(Q: np.ndarray, a: np.ndarray, bin_m: float = 0.005, min_pts: int = 30) -> np.ndarray | None:
     """(3,) a point of the axis line with direction a (3,) through the model points Q (M,3): the median over
     height bins (``bin_m`` along a, ≥ ``min_pts`` points) of the centres of algebraic least-squares circles fitted
     to the bin's points projected on the plane perpendicular to a; None without such a bin."""
-    e1, e2 = _plane_basis(a)
+    e1, e2 = plane_basis(a)
     P = np.c_[Q @ e1, Q @ e2]
     h = Q @ a
     centres = []

@@ -98,7 +98,7 @@ def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, tr
     (an egg). Returns (a, c, rms of the truncated residual in m)."""
     from scipy.optimize import minimize
 
-    e1, e2 = _basis(a0)
+    e1, e2 = plane_basis(a0)
 
     def unpack(x):
         a = a0 + x[0] * e1 + x[1] * e2
@@ -118,7 +118,7 @@ def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, tr
     return a, c, float(np.sqrt(r.fun))
 
 
-def _basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def plane_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two unit vectors orthogonal to the unit vector a and to each other."""
     e1 = np.cross(a, [1.0, 0.0, 0.0])
     if np.linalg.norm(e1) < 0.3:
@@ -202,9 +202,9 @@ def spin_votes(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray,
                tol: float, basis: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Spin votes θ (K,) (rad, wrapped to (−π, π]) of matched points p (in frame i, W) and q (in anchor j, W):
     θ with S(θ) q_O = p_O, kept where radius and height about the axis agree within ``tol`` (m) and the radius is
-    at least ``tol`` (points on the axis carry no azimuth). ``basis``: ``_basis(a)`` when the caller has it (it
+    at least ``tol`` (points on the axis carry no azimuth). ``basis``: ``plane_basis(a)`` when the caller has it (it
     costs more than the votes)."""
-    e1, e2 = _basis(a) if basis is None else basis
+    e1, e2 = plane_basis(a) if basis is None else basis
     Xi, Xj = X_inv(X_i), X_inv(X_j)
     pO = pW @ Xi[:3, :3].T + Xi[:3, 3]
     qO = qW @ Xj[:3, :3].T + Xj[:3, 3]
@@ -246,7 +246,7 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     if not is_rev:
         return SpinResult(False, lam, a, c, theta, votes, False)
     Xc = X_WO.copy()  # corrected poses of the anchors
-    basis = _basis(a)  # once, for every spin_votes
+    basis = plane_basis(a)  # once, for every spin_votes
     anchors = [0]
     half = np.radians(inlier_deg)
     fixed = np.zeros(n, bool)  # frames of fast stretches (spin_mixed)
@@ -341,7 +341,7 @@ def spin_links(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
 
     n = len(X_WO)
     half = np.radians(inlier_deg)
-    basis = _basis(a)  # once, for every spin_votes
+    basis = plane_basis(a)  # once, for every spin_votes
     out = []
     for i in range(1, n):
         kp, des = feats[i]

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.transforms import X_inv, make_X, so3_exp
+from service.transforms import X_inv, make_X, skew, so3_exp
 
 
 @dataclass
@@ -49,11 +49,11 @@ def prolate(Q: np.ndarray, a: np.ndarray, c: np.ndarray) -> bool:
     rotations the closure measures are about its short axes. A model built from keyframes attached with wrong
     rotations is a smear shorter along the axis found on it than across (development eggs 522, 923: 0.83, 0.73;
     the others 1.08–1.31), and its axis is 10° off: not corrected."""
-    from service.tracking.spin import _basis
+    from service.tracking.spin import plane_basis
 
     a = a / np.linalg.norm(a)
     d = Q - c
-    ext = [float(np.ptp(np.percentile(d @ e, [1, 99]))) for e in (a, *_basis(a))]
+    ext = [float(np.ptp(np.percentile(d @ e, [1, 99]))) for e in (a, *plane_basis(a))]
     return ext[0] > max(ext[1], ext[2])
 
 
@@ -61,13 +61,6 @@ def tilt_matrix(omega: np.ndarray, o: np.ndarray) -> np.ndarray:
     """4x4 rotation by the rotation vector omega (3,) about the point o (3,)."""
     R = so3_exp(omega)
     return make_X(R, o - R @ o)
-
-
-def _skew_rows(d: np.ndarray) -> np.ndarray:
-    """(K,3,3) cross-product matrices [d]× of d (K,3)."""
-    Z = np.zeros(len(d))
-    return np.stack([np.stack([Z, -d[:, 2], d[:, 1]], 1), np.stack([d[:, 2], Z, -d[:, 0]], 1),
-                     np.stack([-d[:, 1], d[:, 0], Z], 1)], 1)
 
 
 def tilt_step(pO: np.ndarray, qO: np.ndarray, o: np.ndarray, E: np.ndarray, huber: float, iters: int = 5
@@ -79,7 +72,7 @@ def tilt_step(pO: np.ndarray, qO: np.ndarray, o: np.ndarray, E: np.ndarray, hube
     if K < 3:
         return np.zeros(nb), 0, 0.0
     A = np.zeros((K, 3, nb + 3))
-    A[:, :, :nb] = -_skew_rows(qO - o) @ E
+    A[:, :, :nb] = -skew(qO - o) @ E
     A[:, :, nb:] = np.eye(3)
     A2 = A.reshape(-1, nb + 3)
     b2 = (pO - qO).reshape(-1)
@@ -107,12 +100,12 @@ def tilt_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     centre). ``match(desc_a, desc_b) -> (M,2)``. ``voted`` (N,) bool: only these frames are estimated (the frames
     whose spin the texture measured: where the spin is interpolated, its error enters the matches and, through an
     axis a few degrees off, the fitted tilt); the others interpolate."""
-    from service.tracking.spin import _basis
+    from service.tracking.spin import plane_basis
 
     n = len(X_WO)
     a = a / np.linalg.norm(a)
     o = c + float(np.mean((Q - c) @ a)) * a
-    E = np.stack(_basis(a), 1)  # (3,2)
+    E = np.stack(plane_basis(a), 1)  # (3,2)
     beta = np.zeros((n, 2))
     votes = np.zeros(n, int)
     Xc = X_WO.copy()  # corrected poses of the anchors

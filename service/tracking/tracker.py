@@ -97,6 +97,17 @@ class Keyframe:
     C: np.ndarray | None = None  # (len(P_W),) intensities of the added points (colour term on)
 
 
+def _place_keyframe(kf: Keyframe, X_WO: np.ndarray, carver) -> None:
+    """Give the keyframe kf the pose X_WO (4,4): its points and keypoints re-expressed in O from their world
+    coordinates, and the carver's copy of its pose updated (``carver`` None: no carver)."""
+    kf.X_WO = X_WO
+    X_OW = X_inv(X_WO)
+    kf.P_O = kf.P_W @ X_OW[:3, :3].T + X_OW[:3, 3]
+    kf.kp_O = kf.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3]
+    if carver is not None:
+        carver.update_pose(kf.index, X_WO)
+
+
 @dataclass
 class ObjectModel:
     """Merged keyframe points in O (voxel-averaged) with normals and a KD-tree."""
@@ -535,12 +546,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                     r = _sil_refine(session, kf.index, kf.P_W, r, others,
                                     _sil_model(others, [kk for j, kk in enumerate(keyframes) if j != k], rims, cfg), cfg)
                 if _good(r, cfg):
-                    kf.X_WO = r.X_WO
-                    X_OW = X_inv(r.X_WO)
-                    kf.P_O = kf.P_W @ X_OW[:3, :3].T + X_OW[:3, 3]
-                    kf.kp_O = kf.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3]
-                    if carver is not None:
-                        carver.update_pose(kf.index, r.X_WO)
+                    _place_keyframe(kf, r.X_WO, carver)
             model = _model_from(keyframes, cfg.model_voxel)
     if cfg.final_pass:
         if "final" in sil_st:
@@ -748,12 +754,7 @@ def _resettle_refine(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
             X[j] = T @ X[j]
         for kf in keyframes:
             if i <= kf.index < end:
-                kf.X_WO = T @ kf.X_WO
-                X_OW = X_inv(kf.X_WO)
-                kf.P_O = kf.P_W @ X_OW[:3, :3].T + X_OW[:3, 3]
-                kf.kp_O = kf.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3]
-                if carver is not None:
-                    carver.update_pose(kf.index, kf.X_WO)
+                _place_keyframe(kf, T @ kf.X_WO, carver)
         moved = True
     return _model_from(keyframes, cfg.model_voxel) if moved else None
 
@@ -861,12 +862,7 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
     moved = set(done)
     for kf in keyframes:
         if kf.index in moved:
-            kf.X_WO = X[kf.index].copy()
-            X_OW = X_inv(kf.X_WO)
-            kf.P_O = kf.P_W @ X_OW[:3, :3].T + X_OW[:3, 3]
-            kf.kp_O = kf.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3]
-            if carver is not None:
-                carver.update_pose(kf.index, kf.X_WO)
+            _place_keyframe(kf, X[kf.index].copy(), carver)
     model = _model_from(keyframes, cfg.model_voxel)
     for j in done if cfg.resettle_flush_planar else []:
         Xp = planar_register(obs[j].P_W, X[j], model.Q, model.N, model.tree)
