@@ -82,7 +82,11 @@ def test_textureless_unchanged():
 
 def test_config():
     assert TrackingConfig().spin_tilt  # on by default (docs/tracking.md "Tilt closure of egg-like bodies")
-    assert not TrackingConfig(spin_closure=False).spin_closure  # no effect without the spin closure, no error
+    from service.tracking.tracker import _spin_tilt
+
+    X = np.repeat(np.eye(4)[None], 3, 0)  # no spin closure (spin_closure off): no spin result, nothing done
+    assert _spin_tilt([], X, None, None, TrackingConfig(spin_closure=False)) is None
+    assert np.array_equal(X, np.repeat(np.eye(4)[None], 3, 0))
     with pytest.raises(ValueError, match="spin_tilt"):
         TrackingConfig(spin_tilt="no")
 
