@@ -344,7 +344,8 @@ class TrackingConfig:
     # spin closure (spin.local_depth): each interior keypoint's depth taken from a quadratic fitted to the mask's depth
     # readings within ±spin_depth_fit_px pixels instead of its one pixel's reading (per-pixel noise of 2 mm moves a
     # keypoint on a curved surface seen obliquely by 3-6° of azimuth); 0: the pixel's reading (docs/tracking.md
-    # "Keypoint depth from the surface around it")
+    # "Keypoint depth from the surface around it": ±5 px gains on development pivots 911 and 945 (worst frame 5.53° ->
+    # 4.16°), loses 0.05-0.15° median on 1061-1063, and evaluation 711 goes 1.11° / 6.26° -> 1.25° / 6.51°: off)
     spin_depth_fit_px: int = 0
     # a body of revolution does not turn about its own axis while it topples (service.tracking.fall: no force on it
     # has a moment about the axis): over a topple of the tracked poses (the axis' angle from the vertical changing by
