@@ -205,11 +205,13 @@ def interior_features(gray: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: 
 # when placed on the true surface but spread ±3° with their own depth, and the mode of that spread is pulled by the
 # keypoints whose 2-D position jumped with the changing view (their votes −14…+11°, mostly negative there): the
 # chain carried −0.3…−0.9° per frame through the tilt. The surface is smooth over a few pixels (its radius of
-# curvature ≥ 20 mm against ±7 mm for ±5 px at 0.8 m), so a quadratic in the pixel offsets fitted to the readings of
+# curvature ≥ 16 mm against ±7 mm for ±5 px at 0.8 m), so a quadratic in the pixel offsets fitted to the readings of
 # the mask around the keypoint (least squares, two passes dropping readings beyond 3 robust σ: flying pixels, a
 # fold) estimates the depth where the ray meets the surface with the independent part of the noise divided by
 # about √(n/6) (n ≈ 100 readings for ±5 px); the part correlated over tens of pixels (20 % of the variance) stays,
 # shared by neighbouring keypoints. Nothing but the frame's own depth is used: no model, no pose.
+# Off by default: development pivots 911, 945, 1064 gain, 1061-1063 lose 0.05-0.15° median, and the evaluation
+# bottle pivot 711 and bottle topple 704 lose (docs/tracking.md "Keypoint depth from the surface around it").
 
 def local_depth(depth: np.ndarray, mask: np.ndarray, uv: np.ndarray, w: int, z0: np.ndarray, min_px: int = 20
                 ) -> np.ndarray:
