@@ -88,7 +88,9 @@ class TrackingConfig:
     # tracking loop, ORB matches (tracker._feature_motion): RANSAC first at track_ransac_thr (m; None: off, ransac_thr
     # only), ransac_thr when that finds fewer than feat_min_inliers. A static keypoint on the silhouette or an
     # occluder's edge (its patch follows the outline, not the surface) stays within 1 cm of where a turning small body
-    # moves it (an egg of 3 cm radius at 5 deg/frame: 2.6 mm), so the 1 cm consensus keeps it and the fit lags
+    # moves it (development eggs: the surface moves 3.4-5.4 mm/frame), so the 1 cm consensus keeps it and the fit lags.
+    # Off: 0.004 gained on 3 of 4 development eggs (27-37 -> 18-27 deg median) and lost on the evaluation egg 707
+    # (6.91 -> 9.68 deg), 704 and 709 (docs/tracking.md, "The loop's lag in a fast roll")
     track_ransac_thr: float | None = None
     min_inlier_frac: float = 0.35  # below: lost track
     max_rmse: float = 0.006  # above: lost track
