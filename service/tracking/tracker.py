@@ -3,7 +3,9 @@
 Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth, X_WC):
 1. prediction: constant body-frame velocity from the last two tracked poses;
 2. coarse motion: ORB matches inside the mask against the previous tracked frame and the keyframes (their
-   3-D points stored in O), RANSAC over 3-point Kabsch hypotheses gives a candidate X_WO;
+   3-D points stored in O), RANSAC over 3-point Kabsch hypotheses gives a candidate X_WO (with
+   ``track_ransac_thr``, off, at a tight threshold first: keypoints on the outline stay put while a small body
+   turns under them, ``_feature_motion``);
 3. refinement: robust point-to-plane ICP of p_W against the object model built so far (keyframe points
    merged in O on a voxel grid), with the RANSAC inliers as point-to-point terms; from every candidate, the
    best fit (inlier fraction, then residual) wins;
@@ -442,7 +444,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         fW, fO = _feature_corr(o, obs[a], X[a], keyframes, lost=(a != i - 1))
         feat_W = feat_O = None
         if len(fW) >= max(6, cfg.feat_min_inliers):
-            Xr, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
+            Xr, inl = _feature_motion(fW, fO, cfg, rng)
             if Xr is not None:
                 Xc = X_inv(Xr)  # fO = Xr fW -> Xr = X_OW
                 cands.append(Xc)
@@ -1101,6 +1103,20 @@ def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: li
     if not A:
         return np.zeros((0, 3)), np.zeros((0, 3))
     return np.concatenate(A), np.concatenate(B)
+
+
+def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np.random.Generator
+                    ) -> tuple[np.ndarray | None, np.ndarray]:
+    """RANSAC rigid fit (X_OW, inlier mask) of the tracking loop's ORB correspondences fW (current point, W) ↔ fO
+    (same point, O): at ``track_ransac_thr`` first when set, at ``ransac_thr`` when that finds fewer than
+    ``feat_min_inliers`` (or when it is None). A keypoint whose patch lies on the silhouette or an occluder's edge
+    stays put in the image while a small body turns under it; within the wide threshold of a surface that moved
+    less than it (a 3 cm egg turning 5°/frame: 2.6 mm) it joins the consensus and pulls the fit toward no motion."""
+    if cfg.track_ransac_thr is not None:
+        Xr, inl = ransac_rigid(fW, fO, cfg.track_ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
+        if Xr is not None:
+            return Xr, inl
+    return ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
 
 
 def _kf_features(kp_W: np.ndarray, desc: np.ndarray | None, X_WO: np.ndarray, keyframes: list[Keyframe],
