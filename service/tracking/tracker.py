@@ -827,7 +827,8 @@ def _resettle_edge(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
     from the ``resettle_edge_starts`` poses of the turn (``resettle.tip_path``, every ``resettle_path_step_deg``) its
     points fit best (inlier fraction, then mean distance capped at 2 cm); the best fit among the results consistent
     with the table and the frame's own free space (``resettle.pose_consistent``) replaces the frame's pose when the
-    pose is lost or inconsistent, or when the fit's inlier fraction is at most ``resettle_edge_tol`` below the pose's.
+    pose is lost or inconsistent, or when the fit's inlier fraction is at most ``resettle_edge_tol`` below the pose's
+    and its points lie no farther from the model on average (mean distance capped at 2 cm).
     Updates X, tracked, frac, rmse in place (X_WO in W, m); returns per frame looked at (index, replaced)."""
     from service.tracking.geometry import icp_result
     from service.tracking.resettle import edge_register, leading_pivot, path_keys, tip_path
@@ -865,7 +866,8 @@ def _resettle_edge(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
                     if best is None or ke > best[1]:
                         best = (Xe, ke)
             cur = path_keys(o.P_W, [X[j]], model.tree, cfg.inlier_dist)[0]
-            take = best is not None and (not (tracked[j] and ok(X[j])) or best[1][0] >= cur[0] - cfg.resettle_edge_tol)
+            take = best is not None and (not (tracked[j] and ok(X[j])) or (best[1][0] >= cur[0] - cfg.resettle_edge_tol
+                                                                           and best[1][1] >= cur[1]))
             if take:
                 r = icp_result(X_inv(best[0]), o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist)
                 X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse
