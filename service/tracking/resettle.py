@@ -48,6 +48,10 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    (``side_pose``); the stretch's keyframes move with their frames, the model is rebuilt and every frame is
    registered again in the motions that keep it resting (``planar_register``: a turn about the vertical, a
    horizontal shift).
+7. Then, option (``tracker._resettle_edge``, ``resettle_edge``, off): the fall's frames of every landing checked are
+   registered in the motions of a body tipping about its leading bottom edge with the edge sliding on the table
+   (``edge_register``: a turn about the edge, a horizontal shift), started from the poses of the turn their points fit
+   best (``path_keys``); the fit replaces a frame's pose when it is consistent and fits at least as closely.
 What is left: the join is 0.5–2° off (a yaw the table does not fix) and up to 9 mm sideways; the base test is a lower bound of the slide
 along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile

@@ -29,6 +29,8 @@ adopted too (``resettle_rest_deg``, off), and fall frames off the turn about the
 pose their points fit (``resettle_path``, off). After the gauge, the settled stretch of every landing checked is laid
 flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
 registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
+Then the fall's frames of every landing checked may be registered again in the turns about the leading bottom edge
+with the edge sliding on the table (``resettle_edge``, off).
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
 normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
 or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
