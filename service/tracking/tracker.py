@@ -831,11 +831,13 @@ def _resettle_edge(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
     with the table and the frame's own free space (``resettle.pose_consistent``) replaces the frame's pose when the
     pose is lost or inconsistent, or when the fit's inlier fraction is at most ``resettle_edge_tol`` below the pose's
     and its points lie no farther from the model on average (mean distance capped at 2 cm).
-    Updates X, tracked, frac, rmse in place (X_WO in W, m); returns per frame looked at (index, replaced)."""
+    A body with neither a flat side nor a flat face where it lies (the test of ``_resettle_flush``: an egg) is left as
+    it is. Updates X, tracked, frac, rmse in place (X_WO in W, m); returns per frame looked at (index, replaced)."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import edge_register, leading_pivot, path_keys, tip_path
+    from service.tracking.resettle import edge_register, face_plane, has_flat_side, leading_pivot, path_keys, tip_path
 
     Q = model.Q[:: max(1, len(model.Q) // 4000)]
+    base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
     out = []
     for ld in landings:
         i = ld.i
@@ -843,6 +845,10 @@ def _resettle_edge(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
         pre = [kf for kf in keyframes if kf.index < ld.g0]
         if not before or not pre or not tracked[i]:
             continue
+        M = _model_from(pre, cfg.model_voxel)
+        down = X[i][:3, :3].T @ np.array([0.0, 0.0, -1.0])
+        if not (has_flat_side(M.Q, M.N, base_n) or face_plane(M.Q, M.N, down, np.cos(np.radians(30.0)), 0.03)):
+            continue  # a curved body (an egg) has no edge to tip about (the test of _resettle_flush)
         a = before[-1]
         fall = _fall_base(session, X[a], X[i], X[0], pre, cfg)
         if fall is None:
