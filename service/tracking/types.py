@@ -370,7 +370,7 @@ class TrackingConfig:
     # resettle_path_step_deg) the frame's points fit best; the best fit consistent with the table and the frame's
     # free space replaces the frame's pose when its inlier fraction is at most resettle_edge_tol below the pose's and its
     # mean distance is not larger (docs/tracking.md "Fall frames in the turns about the leading edge")
-    resettle_edge: bool = False  # on: development 820 worst 22.3 -> 3.2 deg, 1043 3.9 -> 5.5 deg (held out)
+    resettle_edge: bool = False  # on: development 820 worst 22.3 -> 3.2 deg, 1043 3.9 -> 5.5 deg; evaluation 703 3.06 -> 4.59 deg, 710 6.30 deg kept
     resettle_edge_tol: float = 0.02
     resettle_edge_starts: int = 3
     # the leading face made perpendicular to the base the object stood on at frame 0 when its fitted normal is within
