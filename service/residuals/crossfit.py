@@ -143,12 +143,13 @@ def lookalike_rule(round_res: list[tuple], folds: list, cfg: ResidualConfig, fin
                    rnd: int) -> list[tuple]:
     """Rule 9 (§4, ``ResidualConfig.lookalike_check``): a candidate A that passes rules 1–8 in this round stays
     passing only if its held-out predictions beat those of every look-alike B (``Effect.lookalikes``) fitted in the
-    same round (B need not pass): on the held-out blocks of every fold where A or B acts, the mean error over the
-    frames where either acts, with A's fold models against B's (``loop.head_to_head``: rules 2 and 3, B in place
+    same round (B need not pass): on the held-out blocks of every fold where A or B acts, the mean error over all
+    the block's frames (a launch block's rest frames hold where the slide stopped, the consequence that tells a
+    friction from a damping), with A's fold models against B's (``loop.head_to_head``: rules 2 and 3, B in place
     of "before"). Two effects that explain the same residual equally well are then neither accepted: the data do
     not say which. ``round_res`` entries are (passes, all-frame fall, candidate, per-fold figures, θ̄); the
     rejected ones are returned with passes False, and their reasons in ``final`` and ``history`` say why."""
-    from service.residuals.loop import _acts_on, effect_mask, head_to_head, reduce_blocks
+    from service.residuals.loop import _acts_on, head_to_head, reduce_blocks
 
     by_name = {r[2].effect: r for r in round_res}
     rng = np.random.default_rng(cfg.seed + 9001)  # its own stream: the main loop's draws stay as they were
@@ -164,9 +165,8 @@ def lookalike_rule(round_res: list[tuple], folds: list, cfg: ResidualConfig, fin
                 e_b, e_a, u = [], [], []
                 for f, fd in enumerate(folds):
                     idx = [i for i, sg in enumerate(fd.held) if _acts_on(sg, ea) or _acts_on(sg, eb)]
-                    masks = [effect_mask(fd.held[i], ea) | effect_mask(fd.held[i], eb) for i in idx]
-                    e_b.append(reduce_blocks([per_b[f]["after_frames"][i] for i in idx], masks))
-                    e_a.append(reduce_blocks([per[f]["after_frames"][i] for i in idx], masks))
+                    e_b.append(reduce_blocks([per_b[f]["after_frames"][i] for i in idx]))
+                    e_a.append(reduce_blocks([per[f]["after_frames"][i] for i in idx]))
                     u.append(fd.units[np.asarray(idx, int)])
                 e_b, e_a, u = np.concatenate(e_b), np.concatenate(e_a), np.concatenate(u)
                 keep = np.isfinite(e_b) & np.isfinite(e_a)

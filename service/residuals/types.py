@@ -154,8 +154,8 @@ class ResidualConfig:
     folds: int = 2
     # look-alike rule (docs/residuals.md §4, rule 9): a candidate that passes rules 1-8 is accepted only if its
     # held-out predictions beat those of each of its look-alikes (``Effect.lookalikes``, e.g. table friction and
-    # linear damping) fitted in the same round, on the held-out blocks where either acts (rules 2 and 3 on the
-    # paired errors of the two); off leaves every output as before
+    # linear damping) fitted in the same round, on all frames of the held-out blocks where either acts (rules 2 and
+    # 3 on the paired errors of the two); off leaves every output as before
     lookalike_check: bool = False
 
     def __post_init__(self) -> None:
