@@ -111,6 +111,7 @@ def real(args) -> None:
         seed=args.seed, candidates=tuple(args.candidates), max_train_segments=args.train_segments,
         max_heldout_segments=args.heldout_segments, fit_maxiter=args.fit_maxiter, max_effects=args.max_effects,
         unit_statistic=args.unit_statistic, folds=args.folds,
+        lookalike_check=args.lookalike_check,
     )
     t0 = time.time()
     out = run(ResidualInputs(cube_model(), trajs, 0.0), cfg,
@@ -136,7 +137,7 @@ def synthetic(args) -> None:
     cands = ("gravity_scale", "restitution", "table_offset", "linear_damping", "angular_damping")
     # 12 training blocks and 24 evaluations per fit, as tests/residuals/test_recover_angular_damping.py
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, max_train_segments=12, fit_maxiter=24,
-                              unit_statistic=args.unit_statistic, folds=args.folds)
+                              unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check)
     import resource
 
     rows = []
@@ -185,7 +186,7 @@ def synthetic(args) -> None:
     for seed in args.seeds[:2]:
         tr, path = push_session(base, {"friction_object_table": 0.5}, seed=seed, noise_m=3e-4, strokes=12)
         pcfg = dataclasses.replace(ResidualConfig.fast(), candidates=("friction_table", "clock_offset", "restitution"),
-                                   segment_s=0.5, seed=seed, unit_statistic=args.unit_statistic, folds=args.folds)
+                                   segment_s=0.5, seed=seed, unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check)
         out = run(ResidualInputs(base, (tr,), 0.0, robot=(path,)), pcfg)
         c = {c.effect: c for c in out.candidates}["friction_table"]
         print(f"pushing, hidden friction_object_table 0.5, seed {seed}: accepted {list(out.accepted)}; "
@@ -217,7 +218,7 @@ def lab(args) -> None:
     cands = ("clock_offset", "friction_table", "table_tilt", "linear_damping", "restitution")
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, max_train_segments=10,
                               nuisance=() if args.exact_model else NUISANCE_LEARNED, unit_statistic=args.unit_statistic,
-                              folds=args.folds)
+                              folds=args.folds, lookalike_check=args.lookalike_check)
     for case in args.cases:
         hidden, name, key = LAB_CASES[case]
         for seed in args.seeds:
@@ -351,7 +352,7 @@ def strike(args) -> None:
             cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, seed=seed,
                                       fit_maxiter=24, max_train_segments=10,
                                       nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
-                                      unit_statistic=args.unit_statistic, folds=args.folds)
+                                      unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check)
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
             if args.true_split:
@@ -474,6 +475,9 @@ def main() -> None:
                         help="held-out test by K-fold cross-fitting (docs/residuals.md §4): 1 = one seeded split "
                              "(half the units held out; this benchmark's default), K >= 2 = every unit held out once, "
                              "rules on the union (the service's default is 2)")
+        sp.add_argument("--lookalike-check", action="store_true",
+                        help="rule 9 (docs/residuals.md §4): a passing candidate must beat each look-alike effect "
+                             "fitted in the same round (table friction against linear damping) on held-out blocks")
     args = ap.parse_args()
     # refused before any session is made (naming the flag), not by a traceback from the loop's config
     if args.folds < 1:

@@ -139,6 +139,58 @@ def agreement_rule(ok: bool, why: str, eff, thetas, model: ObjectModel) -> tuple
     return ok, f"{why}; fold agreement: {txt}"
 
 
+def lookalike_rule(round_res: list[tuple], folds: list, cfg: ResidualConfig, final: dict, history: list,
+                   rnd: int) -> list[tuple]:
+    """Rule 9 (§4, ``ResidualConfig.lookalike_check``): a candidate A that passes rules 1–8 in this round stays
+    passing only if its held-out predictions beat those of every look-alike B (``Effect.lookalikes``) fitted in the
+    same round (B need not pass): on the held-out blocks of every fold where A or B acts, the mean error over all
+    the block's frames (a launch block's rest frames hold where the slide stopped, the consequence that tells a
+    friction from a damping), with A's fold models against B's (``loop.head_to_head``: rules 2 and 3, B in place
+    of "before"). Two effects that explain the same residual equally well are then neither accepted: the data do
+    not say which. ``round_res`` entries are (passes, all-frame fall, candidate, per-fold figures, θ̄); the
+    rejected ones are returned with passes False, and their reasons in ``final`` and ``history`` say why."""
+    from service.residuals.loop import _acts_on, head_to_head, reduce_blocks
+
+    by_name = {r[2].effect: r for r in round_res}
+    rng = np.random.default_rng(cfg.seed + 9001)  # its own stream: the main loop's draws stay as they were
+    out = []
+    for r in round_res:
+        ok, gain, cand, per, theta_rep = r
+        if ok:
+            ea = REGISTRY[cand.effect]
+            for other in ea.lookalikes:
+                if other not in by_name:
+                    continue
+                eb, per_b = REGISTRY[other], by_name[other][3]
+                e_b, e_a, u = [], [], []
+                for f, fd in enumerate(folds):
+                    idx = [i for i, sg in enumerate(fd.held) if _acts_on(sg, ea) or _acts_on(sg, eb)]
+                    e_b.append(reduce_blocks([per_b[f]["after_frames"][i] for i in idx]))
+                    e_a.append(reduce_blocks([per[f]["after_frames"][i] for i in idx]))
+                    u.append(fd.units[np.asarray(idx, int)])
+                e_b, e_a, u = np.concatenate(e_b), np.concatenate(e_a), np.concatenate(u)
+                keep = np.isfinite(e_b) & np.isfinite(e_a)
+                better, txt = head_to_head(e_b[keep], e_a[keep], u[keep], cfg, rng) if keep.sum() >= 2 else (
+                    False, f"{int(keep.sum())} held-out block(s) to compare")
+                if not better:
+                    ok = False
+                    why = (f"rejected: does not predict the held-out blocks better than its look-alike {other} "
+                           f"({txt}); " + cand.reason.removeprefix("passes; "))
+                    cand = dataclasses.replace(cand, reason=why)
+                    final[cand.effect] = cand
+                    for h in history:
+                        if h["round"] == rnd + 1 and h["effect"] == cand.effect:
+                            h.update(passes=False, reason=why)
+                    break
+                cand = dataclasses.replace(cand, reason=f"{cand.reason}; beats its look-alike {other} ({txt})")
+                final[cand.effect] = cand
+                for h in history:
+                    if h["round"] == rnd + 1 and h["effect"] == cand.effect:
+                        h.update(reason=cand.reason)
+        out.append((ok, gain, cand, per, theta_rep))
+    return out
+
+
 def held_out_parts(segs: list, n_traj: int, cfg: ResidualConfig) -> tuple[list[tuple[list, list]], list[np.ndarray]]:
     """[(train_f, held_f)], [units_f] of the held-out test: with ``folds`` = 1 the one seeded split
     (``loop.split_segments``) as a single fold, else the K folds of ``fold_segments``."""
@@ -323,6 +375,8 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
             round_res.append((ok, float(all_before.mean() - all_after.mean()), cand, per, theta_rep))
             final[name] = cand
             history.append(history_entry(rnd, cand, ok, **({"folds": per_fold} if kfold else {})))
+        if cfg.lookalike_check:
+            round_res = lookalike_rule(round_res, folds, cfg, final, history, rnd)
         best = accept_best(round_res, final)
         if best is None:
             break

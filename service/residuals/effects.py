@@ -54,6 +54,11 @@ class Effect:
     # a uniform horizontal force (tilt): accepted only with its signature, a held-out improvement both on blocks
     # moving downhill and on blocks moving uphill (see loop.direction_check)
     directional: bool = False
+    # effects that can explain the same residual (a slide's deceleration: Coulomb friction raised by Δμ and a viscous
+    # damping b remove the same energy from a slide launched at v₀ when Δμ ≈ (2/3)·b·v₀/g): with
+    # ``ResidualConfig.lookalike_check`` a passing candidate is accepted only if it predicts the held-out blocks
+    # better than each of its look-alikes fitted in the same round (crossfit.lookalike_rule)
+    lookalikes: tuple[str, ...] = ()
 
     def clip(self, theta) -> tuple[float, ...]:
         return tuple(float(np.clip(v, lo, hi)) for v, lo, hi in zip(theta, self.lower, self.upper))
@@ -275,6 +280,7 @@ register(Effect(
     description="viscous linear damping rate b, 1/s: free motion v(t) = v(0) exp(-b t)",
     resolution=(0.05,),
     modes=("free_flight", "sliding"),
+    lookalikes=("friction_table",),
 ))
 register(Effect(
     "angular_damping", ("angular_damping",), (0.0,), (5.0,), (0.0,), _ang_damp_sig, _ang_damp_guess,
@@ -289,6 +295,7 @@ register(Effect(
     description="object-table Coulomb friction replacing the prior",
     resolution=(0.02,),
     modes=("sliding", "robot_contact"),
+    lookalikes=("linear_damping",),
 ))
 register(Effect(
     "friction_robot", ("friction_scale_robot",), (0.2,), (5.0,), (1.0,), _fric_robot_sig, _fric_robot_guess,

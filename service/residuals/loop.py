@@ -699,6 +699,27 @@ def _decide(before: np.ndarray, after: np.ndarray, units: np.ndarray, cfg: Resid
     return True, "passes; " + why, rel
 
 
+def head_to_head(err_other: np.ndarray, err_this: np.ndarray, units: np.ndarray, cfg: ResidualConfig,
+                 rng) -> tuple[bool, str]:
+    """Does this candidate predict held-out blocks better than another one fitted to the same data? Paired block
+    errors (S,) of the other (``err_other``) and of this one (``err_this``), in metres, on the same held-out blocks;
+    rules 2 and 3 of the acceptance test with the other candidate's model in place of "before": the one-sided
+    (1 − α) lower bound of the mean per-unit relative improvement is > 0, and the sign test over blocks (ties
+    within ``tie_tol_rel`` of the median error dropped) gives p < α. No minimum fall (rule 1): between two effects
+    that each pass on their own, any improvement beyond noise decides. Returns (better, text)."""
+    x = unit_improvements(err_other, err_this, units, cfg.unit_statistic)
+    lower = unit_lower_bound(x, cfg, rng)
+    d = err_other - err_this
+    tol = cfg.tie_tol_rel * float(np.median(err_other))
+    n_pos, n_neg = int(np.sum(d > tol)), int(np.sum(d < -tol))
+    p_sign = float(binom.sf(n_pos - 1, n_pos + n_neg, 0.5)) if n_pos + n_neg else 1.0
+    better = bool(lower > 0 and p_sign < cfg.alpha)
+    txt = (f"{err_other.mean() * 1e3:.2f} -> {err_this.mean() * 1e3:.2f} mm on {len(d)} blocks, lower bound "
+           f"{lower:+.3f} of the mean relative improvement over {len(x)} units, better/worse on {n_pos}/{n_neg} blocks "
+           f"(sign test p={p_sign:.3f})")
+    return better, txt
+
+
 def _carried_keys() -> set[str] | None:
     """Effect keys the project's simulator registry understands (None: no registry, keep all)."""
     try:

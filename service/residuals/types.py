@@ -152,8 +152,15 @@ class ResidualConfig:
     # learned-model strike sessions (the pipeline's path) one split accepted a wrong effect on 3 of 21, 2 folds on none
     # (docs/residuals.md §7, "Plain learned-model sessions 610-621"); 2-3.7x the CPU of one split
     folds: int = 2
+    # look-alike rule (docs/residuals.md §4, rule 9): a candidate that passes rules 1-8 is accepted only if its
+    # held-out predictions beat those of each of its look-alikes (``Effect.lookalikes``, e.g. table friction and
+    # linear damping) fitted in the same round, on all frames of the held-out blocks where either acts (rules 2 and
+    # 3 on the paired errors of the two); off leaves every output as before
+    lookalike_check: bool = False
 
     def __post_init__(self) -> None:
+        if not isinstance(self.lookalike_check, bool):
+            raise ValueError(f"ResidualConfig.lookalike_check must be a bool, not {self.lookalike_check!r}")
         for name in ("max_base_error_rel_learned", "launch_speed", "launch_max_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ResidualConfig.{name} must be > 0, not {getattr(self, name)!r}")
