@@ -86,9 +86,9 @@ def _acting_txt(c) -> str:
     docs/residuals.md §1) beside its own frames' scalar error (the earlier "own frames" figure), after / before."""
     comp = (c.acts_on or {}).get("component", "?")
     return (f"where it acts ({comp}) {c.heldout_acting_before * 1e3:.2f} -> {c.heldout_acting_after * 1e3:.2f} mm "
-            f"({_ratio(c.heldout_acting_after, c.heldout_acting_before):.2f}x); own frames, position + rho*angle, "
+            f"({_ratio(c.heldout_acting_after, c.heldout_acting_before):.3f}x); own frames, position + rho*angle, "
             f"{c.heldout_error_before * 1e3:.2f} -> {c.heldout_error_after * 1e3:.2f} mm "
-            f"({_ratio(c.heldout_error_after, c.heldout_error_before):.2f}x)")
+            f"({_ratio(c.heldout_error_after, c.heldout_error_before):.3f}x)")
 
 
 def _print_outputs(out, elapsed: float) -> None:
@@ -433,7 +433,7 @@ def strike(args) -> None:
                 line += (f"; true {truth}, fitted {fs} (error {rel:.0%}){fm_txt}; "
                          + (_acting_txt(c) if np.isfinite(c.heldout_acting_before) else "its frames not judged")
                          + f"; earlier criterion (free-sliding position <= 0.6x): "
-                         f"{'PASS' if right and rel <= 0.25 and ratio <= 0.6 else 'FAIL'} ({ratio:.2f}x)"
+                         f"{'PASS' if right and rel <= 0.25 and ratio <= 0.6 else 'FAIL'} ({ratio:.3f}x)"
                          f"; decision: {c.reason.split(';')[0]}")
             if args.learned_model:
                 line += (f"; corrected model {out.by_mode['error_corrected']['scalar_m'] * 1e3:.2f} mm, corrections "
