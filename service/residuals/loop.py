@@ -37,7 +37,9 @@ rest is compensating for something else); (f) a directional effect (table tilt) 
 held-out blocks moving downhill and blocks moving uphill both improve (``direction_check``). The passing candidate with the largest fall of the error
 over all held-out frames is accepted (a common basis: an effect judged on many frames, e.g. a near-zero
 friction letting a mistimed push slide, must not outrank the one that explains them); the round repeats
-until none passes or ``max_effects`` are accepted. With ``ResidualConfig.folds`` = K >= 2 the held-out blocks are
+until none passes or ``max_effects`` are accepted. Every judged candidate also carries its held-out error where it acts (``acting_errors``:
+the error component it declares, ``Effect.component`` — position, rotation or both —, on the frames of its modes;
+issue #6's measure, docs/residuals.md §1), reported and used by no rule. With ``ResidualConfig.folds`` = K >= 2 the held-out blocks are
 those of K-fold cross-fitting instead of one split (``service/residuals/crossfit.py``): every unit held out once,
 the fits of its fold never see it, the rules applied to the union of the folds. Both run one greedy loop,
 ``crossfit.crossfit``, the one split as its K = 1 case.
