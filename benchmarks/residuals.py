@@ -25,7 +25,8 @@ hidden effect each, and a model carrying learned-model errors that the nuisance 
 
 Strike: synthetic-lab strike sessions (impulsive pushes, the object slides free), one hidden effect each, the
 settings of tests/residuals/test_strike_sessions.py on seeds the tests do not use (per effect: truth, fitted,
-held-out error before/after, decision). With ``--learned-model`` (model with learned-model errors and the nuisance
+held-out error before/after, decision; issue #6's criteria on the held-out error where the effect acts,
+docs/residuals.md §1, with the earlier free-sliding figure beside it). With ``--learned-model`` (model with learned-model errors and the nuisance
 refit) the CoM offset is a correction, not a candidate: its case is right when nothing is accepted, and the
 corrected CoM is printed against the truth.
 """
