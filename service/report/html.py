@@ -137,10 +137,17 @@ def _residuals(r: dict) -> str:
     if not res:
         return '<p class="null">not run</p>'
     cands = res.get("candidates") or []
-    head = "<tr><th class='k'>effect</th><th class='k'>parameters</th><th>held-out error before</th><th>after</th><th>accepted</th></tr>"
+    head = ("<tr><th class='k'>effect</th><th class='k'>parameters</th><th>held-out error before</th><th>after</th>"
+            "<th class='k'>acts on</th><th>where it acts: before</th><th>after</th><th>accepted</th></tr>")
+
+    def acts(c: dict) -> str:
+        a = c.get("acts_on") or {}
+        return f"{a.get('component', '')} ({', '.join(a.get('modes') or [])})" if a else ""
+
     rows = "".join(
         f"<tr><td class='k'>{_e(c.get('effect'))}</td><td class='k'>{_e(', '.join(f'{k}={v:.4g}' for k, v in (c.get('params') or {}).items()))}</td>"
         f"<td>{_fmt(c.get('heldout_error_before'))}</td><td>{_fmt(c.get('heldout_error_after'))}</td>"
+        f"<td class='k'>{_e(acts(c))}</td><td>{_fmt(c.get('heldout_acting_before'))}</td><td>{_fmt(c.get('heldout_acting_after'))}</td>"
         f"<td>{'<span class=ok>yes</span>' if c.get('accepted') else '<span class=no>no</span>'}</td></tr>"
         for c in cands)
     eb, ea = res.get("error_before") or {}, res.get("error_after") or {}

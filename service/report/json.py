@@ -107,7 +107,11 @@ def residuals_section(residuals, reason: str | None) -> dict:
         "candidates": [
             {"effect": c.effect, "params": dict(c.params), "heldout_error_before": c.heldout_error_before,
              "heldout_error_after": c.heldout_error_after, "accepted": bool(c.accepted),
-             **({"reason": c.reason} if c.reason else {})}
+             **({"reason": c.reason} if c.reason else {}),
+             # where the effect acts (contact modes, error component) and the held-out error there before/after
+             # (docs/residuals.md §1): issue #6's "rollout error where it acts"
+             **({"acts_on": dict(c.acts_on), "heldout_acting_before": c.heldout_acting_before,
+                 "heldout_acting_after": c.heldout_acting_after} if getattr(c, "acts_on", None) else {})}
             for c in residuals.candidates
         ],
         "accepted": list(residuals.accepted),

@@ -208,7 +208,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
     its single fold's figures are reported as they are (no fold values, no per-fold records, no final refit).
     ``model`` is the input model, ``segs`` every rollout block, ``ev`` the Evaluator."""
     from service.residuals.loop import (
-        _acts_on, _carried_keys, _decide, _fit, _fit_nuisance, _refine_joint, accept_best, effect_mask, history_entry,
+        _acts_on, _carried_keys, _decide, _fit, _fit_nuisance, _refine_joint, accept_best, acts_on, effect_mask, history_entry,
         inadequacy, judged_candidate, later_rules, not_judged, reduce_blocks,
     )
 
@@ -221,7 +221,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
     rng = np.random.default_rng(cfg.seed + 1)
     for f, fd in enumerate(folds):
         fd.model, fd.base_effects = input_model, dict(input_effects)
-        fd.held_frames0 = ev.frame_scalar(input_model, input_effects, fd.held)
+        fd.held_frames0 = ev.frame_split(input_model, input_effects, fd.held)
         fd.nuisance = {}
         if nuis_names:
             report(0.02 + 0.03 * f / K, (f"fold {f + 1}/{K}: " if kfold else "")
@@ -244,7 +244,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                 ]
                 fd.train = [dataclasses.replace(sg, mode=modes[sg.traj][sg.start:sg.stop]) for sg in fd.train]
                 fd.held = [dataclasses.replace(sg, mode=modes[sg.traj][sg.start:sg.stop]) for sg in fd.held]
-        fd.cur_frames = ev.frame_scalar(fd.model, fd.base_effects, fd.held) if fd.nuis_fix else fd.held_frames0
+        fd.cur_frames = ev.frame_split(fd.model, fd.base_effects, fd.held) if fd.nuis_fix else fd.held_frames0
 
     def corrections_now() -> dict[str, float]:
         """The corrections effects are judged against: one split's own, else the fold mean (sorted keys)."""
@@ -305,7 +305,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                 final[name] = EffectCandidate(
                     name, {}, float("nan"), float("nan"), False,
                     f"rejected: too few blocks in its modes {eff.modes} ({counts}, held-out {n_held})",
-                    signature=sig, round=rnd)
+                    signature=sig, round=rnd, acts_on=acts_on(eff))
                 continue
             per = []  # per fold: dict of figures
             for f, fd in enumerate(folds):
@@ -315,7 +315,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                 train_before = float(ev.errors(cm, {**fd.base_effects, **cs}, tr_e[f], tr_masks).mean())
                 theta, e_train = _fit(eff, guess, fd.model, fd.base_effects, fd.chosen, ev, tr_e[f], cfg)
                 m_after, s_after = apply_effects(fd.model, {**fd.chosen, name: theta})
-                after_frames = ev.frame_scalar(m_after, {**fd.base_effects, **s_after}, fd.held)
+                after_frames = ev.frame_split(m_after, {**fd.base_effects, **s_after}, fd.held)
                 per.append({"theta": theta, "e_train": e_train, "train_before": train_before, "tr_masks": tr_masks,
                             "ho_masks": ho_masks, "after_frames": after_frames, "nuis": fd.nuis_fix, "refit": False})
 
@@ -329,6 +329,12 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                 aa = union_all([p["after_frames"] for p in per])
                 return rb, ra, u, ab, aa
 
+            def gather_acting():
+                """Issue #6's error where the effect acts: its component on its frames, per held-out block."""
+                return tuple(np.concatenate([reduce_blocks([fr[i] for i in ho_idx[f]], per[f]["ho_masks"], eff.component)
+                                             for f, fr in enumerate(frs)])
+                             for frs in ([fd.cur_frames for fd in folds], [p["after_frames"] for p in per]))
+
             rel_before, rel_after, u_all, all_before, all_after = gather()
             ok, why, rel = _decide(rel_before, rel_after, u_all, cfg, rng)
             helps = [p["e_train"] < (1.0 - 0.5 * cfg.min_rel_improvement) * p["train_before"]
@@ -340,7 +346,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                     cand_nuis, theta = _refine_joint(fd.nuis_fix, eff, per[f]["theta"], fd.chosen, input_model,
                                                      dict(input_effects), ev, fd.tr_n, cfg)
                     m_after, s_after = apply_effects(input_model, {**cand_nuis, **fd.chosen, name: theta})
-                    per[f]["after_frames"] = ev.frame_scalar(m_after, {**input_effects, **s_after}, fd.held)
+                    per[f]["after_frames"] = ev.frame_split(m_after, {**input_effects, **s_after}, fd.held)
                     per[f]["e_train"] = float(ev.errors(m_after, {**input_effects, **s_after}, tr_e[f], per[f]["tr_masks"]).mean())
                     per[f].update(theta=theta, nuis=cand_nuis, refit=True)
                 rel_before, rel_after, u_all, all_before, all_after = gather()
@@ -357,16 +363,22 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                                   (f" in fold(s) {bound_f}" if kfold else "") if bound_f else None)
             ok, why = agreement_rule(ok, why, eff, thetas, folds[0].model)  # K >= 2 only
             n_tr = sum(len(t) for t in tr_e)
+            act_before, act_after = gather_acting()
             cand = judged_candidate(name, eff, theta_rep, guess, sig, why, rel_before, rel_after, all_before, all_after,
                                     np.mean([p["train_before"] for p in per]), np.mean([p["e_train"] for p in per]),
-                                    rnd, {"train": n_tr, "heldout": int(len(rel_before)), **({"folds": K} if kfold else {})})
+                                    rnd, {"train": n_tr, "heldout": int(len(rel_before)), **({"folds": K} if kfold else {})},
+                                    act_before, act_after)
             per_fold = []
             for f, (p, fd) in enumerate(zip(per, folds)):
                 b = reduce_blocks([fd.cur_frames[i] for i in ho_idx[f]], p["ho_masks"])
                 a = reduce_blocks([p["after_frames"][i] for i in ho_idx[f]], p["ho_masks"])
+                ba = reduce_blocks([fd.cur_frames[i] for i in ho_idx[f]], p["ho_masks"], eff.component)
+                aa = reduce_blocks([p["after_frames"][i] for i in ho_idx[f]], p["ho_masks"], eff.component)
                 per_fold.append({"params": {k: float(v) for k, v in zip(eff.params, p["theta"])},
                                  "heldout_error_before": float(np.mean(b)) if len(b) else None,
                                  "heldout_error_after": float(np.mean(a)) if len(a) else None,
+                                 "heldout_acting_before": float(np.mean(ba)) if len(ba) else None,
+                                 "heldout_acting_after": float(np.mean(aa)) if len(aa) else None,
                                  "train_error_before": p["train_before"], "train_error_after": p["e_train"],
                                  "blocks": {"train": len(tr_e[f]), "heldout": int(len(ho_idx[f]))},
                                  "refit_with_corrections": p["refit"]})

@@ -35,6 +35,9 @@ from service.model import ObjectModel
 from service.session.types import Friction
 
 G = 9.81
+# the parts of the per-frame rollout error an effect can act on (``Effect.component``): |p_sim − p_obs|, ρ·∠(R_obsᵀ R_sim),
+# or their sum (the loop's scalar error)
+COMPONENTS: tuple[str, ...] = ("position", "rotation", "both")
 
 
 @dataclass(frozen=True)
@@ -59,6 +62,16 @@ class Effect:
     # ``ResidualConfig.lookalike_check`` a passing candidate is accepted only if it predicts the held-out blocks
     # better than each of its look-alikes fitted in the same round (crossfit.lookalike_rule)
     lookalikes: tuple[str, ...] = ()
+    # the component of the rollout error it acts on (docs/residuals.md §1, "Error where an effect acts"):
+    # "position" (a force through the centre of mass: gravity, tilt, table height, linear damping), "rotation" (a
+    # torque about it: angular damping), "both" (a force at a contact point off the centre of mass, or a change of
+    # where and when the object is touched). Issue #6's "rollout error where it acts" is this component on the
+    # frames of ``modes`` of the held-out blocks where it acts (``EffectCandidate.heldout_acting_before/after``)
+    component: str = "both"
+
+    def __post_init__(self) -> None:
+        if self.component not in COMPONENTS:
+            raise ValueError(f"Effect {self.name!r}: component must be one of {COMPONENTS}, not {self.component!r}")
 
     def clip(self, theta) -> tuple[float, ...]:
         return tuple(float(np.clip(v, lo, hi)) for v, lo, hi in zip(theta, self.lower, self.upper))
@@ -245,6 +258,7 @@ register(Effect(
     description="|g| = 9.81·s (also absorbs a camera time-scale error: s = time_scale²)",
     resolution=(0.004,),
     modes=("free_flight",),
+    component="position",
 ))
 register(Effect(
     "time_scale", ("time_scale",), (0.92,), (1.08,), (1.0,), _grav_sig, _time_guess,
@@ -252,6 +266,7 @@ register(Effect(
     description="physical seconds per data second (camera clock rate error)",
     resolution=(0.002,),
     modes=("free_flight",),
+    component="position",
 ))
 register(Effect(
     "table_tilt", ("table_tilt_x", "table_tilt_y"), (-0.15, -0.15), (0.15, 0.15), (0.0, 0.0),
@@ -259,6 +274,7 @@ register(Effect(
     description="table tilt = gravity direction in W: g = R_y(ty) R_x(tx) (0,0,-|g|), rad",
     resolution=(0.003, 0.003),
     modes=("free_flight", "sliding", "robot_contact"),
+    component="position",
 ))
 register(Effect(
     "table_offset", ("table_offset",), (-0.01,), (0.01,), (0.0,), _table_sig, _table_guess,
@@ -266,6 +282,7 @@ register(Effect(
     description="table surface height error, m (apparent penetration or hovering at rest)",
     resolution=(0.0003,),
     modes=("rest",),
+    component="position",
 ))
 register(Effect(
     "restitution", ("restitution",), (0.0,), (0.95,), (0.0,), _rest_sig, _rest_guess,
@@ -273,6 +290,7 @@ register(Effect(
     description="coefficient of restitution of the object (table and sphere count 1)",
     resolution=(0.05,),
     modes=("impact", "robot_contact"),  # table impacts, and the sphere's strikes
+    component="both",
 ))
 register(Effect(
     "linear_damping", ("linear_damping",), (0.0,), (5.0,), (0.0,), _lin_damp_sig, _lin_damp_guess,
@@ -281,6 +299,7 @@ register(Effect(
     resolution=(0.05,),
     modes=("free_flight", "sliding"),
     lookalikes=("friction_table",),
+    component="position",
 ))
 register(Effect(
     "angular_damping", ("angular_damping",), (0.0,), (5.0,), (0.0,), _ang_damp_sig, _ang_damp_guess,
@@ -288,6 +307,7 @@ register(Effect(
     description="viscous angular damping rate b, 1/s: free spin w(t) = w(0) exp(-b t)",
     resolution=(0.05,),
     modes=("free_flight", "sliding"),
+    component="rotation",
 ))
 register(Effect(
     "friction_table", ("friction_object_table",), (0.02,), (1.5,), (float("nan"),), _fric_table_sig,
@@ -296,6 +316,7 @@ register(Effect(
     resolution=(0.02,),
     modes=("sliding", "robot_contact"),
     lookalikes=("linear_damping",),
+    component="both",
 ))
 register(Effect(
     "friction_robot", ("friction_scale_robot",), (0.2,), (5.0,), (1.0,), _fric_robot_sig, _fric_robot_guess,
@@ -305,6 +326,7 @@ register(Effect(
     # the tangential impulse of a glancing strike shows in the free slide that follows (spin, heading): judged on
     # the sliding frames too, as the table friction (on robot-contact frames alone a strike leaves 1-2 frames)
     modes=("robot_contact", "sliding"),
+    component="both",
 ))
 register(Effect(
     "com_offset", ("com_offset_x", "com_offset_y", "com_offset_z"), (-0.03,) * 3, (0.03,) * 3, (0.0,) * 3,
@@ -312,6 +334,7 @@ register(Effect(
     description="centre-of-mass shift in O, m (where the CoM was held fixed)",
     resolution=(0.002,) * 3,
     modes=("sliding", "robot_contact"),  # a resting object's pose does not depend on it
+    component="both",
 ))
 register(Effect(
     "clock_offset", ("clock_offset",), (-0.2,), (0.2,), (0.0,), _clock_sig, _clock_guess,
@@ -319,6 +342,7 @@ register(Effect(
     description="robot-camera clock offset, s: robot path read at t + delta",
     resolution=(0.005,),
     modes=("robot_contact", "sliding"),
+    component="both",
 ))
 
 
@@ -328,6 +352,7 @@ register(Effect(
     description="scale of the learned geometry along its principal axes (a model correction: nuisance only)",
     resolution=(0.02,) * 3,
     modes=("sliding", "rest", "robot_contact"),
+    component="both",
 ))
 
 register(Effect(
@@ -336,6 +361,7 @@ register(Effect(
     description="factor on the learned rotational inertia (a model correction: nuisance only)",
     resolution=(0.05,),
     modes=("sliding", "rest", "robot_contact"),
+    component="both",
 ))
 
 # Effects that correct the fitted model rather than add physics: refitted first, as nuisance parameters,

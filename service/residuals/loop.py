@@ -37,7 +37,9 @@ rest is compensating for something else); (f) a directional effect (table tilt) 
 held-out blocks moving downhill and blocks moving uphill both improve (``direction_check``). The passing candidate with the largest fall of the error
 over all held-out frames is accepted (a common basis: an effect judged on many frames, e.g. a near-zero
 friction letting a mistimed push slide, must not outrank the one that explains them); the round repeats
-until none passes or ``max_effects`` are accepted. With ``ResidualConfig.folds`` = K >= 2 the held-out blocks are
+until none passes or ``max_effects`` are accepted. Every judged candidate also carries its held-out error where it acts (``acting_errors``:
+the error component it declares, ``Effect.component`` — position, rotation or both —, on the frames of its modes;
+issue #6's measure, docs/residuals.md §1), reported and used by no rule. With ``ResidualConfig.folds`` = K >= 2 the held-out blocks are
 those of K-fold cross-fitting instead of one split (``service/residuals/crossfit.py``): every unit held out once,
 the fits of its fold never see it, the rules applied to the union of the folds. Both run one greedy loop,
 ``crossfit.crossfit``, the one split as its K = 1 case.
@@ -300,13 +302,41 @@ def split_segments(segs: list[Segment], n_traj: int, cfg: ResidualConfig) -> tup
     return train, held, units
 
 
-def reduce_blocks(frames: list[np.ndarray], masks=None) -> np.ndarray:
-    """Mean of each block's per-frame errors over its tracked frames (restricted to ``masks[i]``)."""
+def frame_component(e: np.ndarray, component: str = "both") -> np.ndarray:
+    """(T,) per-frame error of one block: ``e`` (T,) is the scalar error as it is; ``e`` (T,2) holds the parts
+    [|Δp|, ρ·∠] (``Evaluator.frame_split``), of which ``component`` ("position", "rotation" or "both": their sum,
+    the scalar error) is taken, m."""
+    e = np.asarray(e)
+    if e.ndim == 1:
+        if component != "both":
+            raise ValueError(f"a scalar per-frame error has no {component!r} part")
+        return e
+    if component == "position":
+        return e[:, 0]
+    if component == "rotation":
+        return e[:, 1]
+    if component == "both":
+        return e[:, 0] + e[:, 1]
+    raise ValueError(f"unknown error component {component!r}")
+
+
+def reduce_blocks(frames: list[np.ndarray], masks=None, component: str = "both") -> np.ndarray:
+    """Mean of each block's per-frame errors over its tracked frames (restricted to ``masks[i]``); for per-frame
+    parts (T,2) of ``Evaluator.frame_split``, of their ``component`` (``frame_component``)."""
     out = np.empty(len(frames))
-    for i, e in enumerate(frames):
+    for i, fr in enumerate(frames):
+        e = frame_component(fr, component)
         m = np.isfinite(e) if masks is None else (np.isfinite(e) & masks[i])
         out[i] = float(e[m].mean()) if m.any() else np.nan
     return out
+
+
+def acting_errors(frames: list[np.ndarray], segs: list, effect: Effect) -> np.ndarray:
+    """(S,) the rollout error where ``effect`` acts, per block: the mean over the block's frames where it acts
+    (``effect_mask``: its contact modes) of the error component it acts on (``Effect.component``), m; ``frames``
+    are the blocks' per-frame parts (T,2) from ``Evaluator.frame_split``. Issue #6's third criterion compares the
+    mean of this over the held-out blocks where the effect acts, after against before."""
+    return reduce_blocks(frames, [effect_mask(sg, effect) for sg in segs], effect.component)
 
 
 class Evaluator:
@@ -331,15 +361,20 @@ class Evaluator:
         pos[bad], rot[bad] = 10.0, math.pi
         return pos, rot
 
-    def frame_scalar(self, model, effects, segs) -> list[np.ndarray]:
-        """Per block, the (T,) per-frame scalar error |Δp| + ρ·∠, m (untracked frames NaN)."""
+    def frame_split(self, model, effects, segs) -> list[np.ndarray]:
+        """Per block, the (T,2) per-frame parts of the error [|Δp|, ρ·∠], m (untracked frames NaN): the scalar
+        error is their sum (``frame_component``), an effect's error where it acts one of them or both."""
         out = []
         for s in segs:
             pos, rot = self.frame_errors(model, effects, s)
-            e = pos + self.rot_scale * rot
+            e = np.stack([pos, self.rot_scale * rot], 1)
             e[~s.tracked] = np.nan
             out.append(e)
         return out
+
+    def frame_scalar(self, model, effects, segs) -> list[np.ndarray]:
+        """Per block, the (T,) per-frame scalar error |Δp| + ρ·∠, m (untracked frames NaN)."""
+        return [frame_component(e) for e in self.frame_split(model, effects, segs)]
 
     def errors(self, model, effects, segs, masks=None) -> np.ndarray:
         """(S,) mean scalar error per block over its tracked frames (and ``masks[i]`` if given), m."""
@@ -565,12 +600,17 @@ def inadequacy(base_err: float, model: ObjectModel, pinned: list[str], corrected
     return None
 
 
+def acts_on(effect: Effect) -> dict:
+    """Where an effect acts, as reported with each candidate: its contact modes and the error component."""
+    return {"modes": list(effect.modes), "component": effect.component}
+
+
 def not_judged(names: list[str], why_not: str) -> dict[str, EffectCandidate]:
     """Every candidate reported as not judged, with the reason the model is not adequate."""
     return {name: EffectCandidate(
         name, {}, float("nan"), float("nan"), False,
         f"not judged: {why_not}; the model does not explain the motion well enough to name a missing effect",
-        round=0) for name in names}
+        round=0, acts_on=acts_on(REGISTRY[name])) for name in names}
 
 
 def later_rules(ok: bool, why: str, eff, theta, model: ObjectModel, all_before: np.ndarray, all_after: np.ndarray,
@@ -597,9 +637,10 @@ def later_rules(ok: bool, why: str, eff, theta, model: ObjectModel, all_before: 
 
 def judged_candidate(name: str, eff, theta, guess, sig, why: str, rel_before: np.ndarray, rel_after: np.ndarray,
                      all_before: np.ndarray, all_after: np.ndarray, train_before: float, train_after: float, rnd: int,
-                     blocks: dict) -> EffectCandidate:
+                     blocks: dict, acting_before: np.ndarray, acting_after: np.ndarray) -> EffectCandidate:
     """A candidate that was fitted and judged (not yet accepted): its parameters and initial guess by name, its
-    held-out errors before/after on its own frames (``rel_*``) and on all held-out frames (``all_*``)."""
+    held-out errors before/after on its own frames (``rel_*``: the scalar error the rules judge), on all held-out
+    frames (``all_*``) and where it acts (``acting_*``: the component it acts on, on its own frames; per block)."""
     return EffectCandidate(
         effect=name,
         params={k: float(v) for k, v in zip(eff.params, theta)},
@@ -615,6 +656,9 @@ def judged_candidate(name: str, eff, theta, guess, sig, why: str, rel_before: np
         heldout_all_before=float(all_before.mean()),
         heldout_all_after=float(all_after.mean()),
         blocks=blocks,
+        acts_on=acts_on(eff),
+        heldout_acting_before=float(acting_before.mean()),
+        heldout_acting_after=float(acting_after.mean()),
     )
 
 
@@ -623,6 +667,7 @@ def history_entry(rnd: int, cand: EffectCandidate, ok: bool, **extra) -> dict:
     return {"round": rnd + 1, "effect": cand.effect, "params": dict(cand.params), "passes": ok,
             "heldout_error_before": cand.heldout_error_before, "heldout_error_after": cand.heldout_error_after,
             "heldout_all_before": cand.heldout_all_before, "heldout_all_after": cand.heldout_all_after,
+            "heldout_acting_before": cand.heldout_acting_before, "heldout_acting_after": cand.heldout_acting_after,
             "reason": cand.reason, **extra}
 
 

@@ -202,6 +202,13 @@ class EffectCandidate:
     heldout_all_before: float = float("nan")  # mean over all held-out blocks (the heldout_error_* fields
     heldout_all_after: float = float("nan")  # are over the held-out blocks where the effect acts)
     blocks: dict = field(default_factory=dict)  # {"train": n, "heldout": n} blocks used
+    # where the effect acts: {"modes": [...], "component": "position" | "rotation" | "both"} (``Effect``), and the
+    # held-out error there before/after (m): over the held-out blocks where it acts, each block's mean over its frames
+    # in those modes of that component (|Δp|, ρ·∠ or their sum) — issue #6's "rollout error where it acts". The rules
+    # judge ``heldout_error_*`` (the scalar error on the same frames); for "both" the two are equal
+    acts_on: dict = field(default_factory=dict)
+    heldout_acting_before: float = float("nan")
+    heldout_acting_after: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -236,6 +243,9 @@ class ResidualOutputs:
                     "heldout_all_before": _num(c.heldout_all_before),
                     "heldout_all_after": _num(c.heldout_all_after),
                     "blocks": dict(c.blocks),
+                    "acts_on": dict(c.acts_on),
+                    "heldout_acting_before": _num(c.heldout_acting_before),
+                    "heldout_acting_after": _num(c.heldout_acting_after),
                 }
                 for c in self.candidates
             ],

@@ -43,6 +43,9 @@ def test_hidden_effect_is_found(hidden, key, candidates, mode):
     assert abs(out.effects[key] - truth) <= 0.25 * abs(truth - null)
     # the error where the effect acts falls to <= 0.6x; the overall held-out error falls too
     assert _mode_err(out, mode, "after") <= 0.6 * _mode_err(out, mode, "before")
+    # and issue #6's measure, the held-out error where it acts (its error component on its modes' frames), too
+    c = {c.effect: c for c in out.candidates}[key]
+    assert c.heldout_acting_after <= 0.6 * c.heldout_acting_before
     assert out.error_after["scalar_m"] < out.error_before["scalar_m"]
     # the accepted effect is carried by the output model or reported as an effect of the recording
     assert key in out.model.effects or key in out.recording_effects

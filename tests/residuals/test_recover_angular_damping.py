@@ -25,4 +25,7 @@ def test_hidden_angular_damping_is_found():
     assert out.error_after["rot_err_deg"] <= 0.6 * out.error_before["rot_err_deg"]
     c = {c.effect: c for c in out.candidates}["angular_damping"]
     assert c.heldout_error_after < c.heldout_error_before
+    # issue #6's measure: the held-out rotation error on its own frames (free flight, sliding) falls to <= 0.6x
+    assert c.acts_on["component"] == "rotation"
+    assert c.heldout_acting_after <= 0.6 * c.heldout_acting_before
     assert out.model.effects == {"angular_damping": out.effects["angular_damping"]}
