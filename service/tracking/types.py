@@ -294,6 +294,13 @@ class TrackingConfig:
     spin_roll_rate_deg: float = 1.0
     spin_roll_agree: float = 0.3
     spin_roll_tol: float = 0.2  # a texture within this fraction of the roll is kept (the roll's own error)
+    # the contact radius of the roll: "contact" (the model's median radius at the contacts' median height) or
+    # "widest" (the radius of the profile's widest straight stretch, the generator a lying body rests on)
+    spin_roll_radius: str = "contact"
+    # with spin_fall: a rolling stretch whose chain pooled at least this many texture votes per frame on average keeps
+    # the texture (the roll only where the texture is weak, as the mixed estimate's spin_mixed_votes); None: the
+    # guard above alone
+    spin_roll_votes: float | None = 60.0
     # the settled object after a topple's landing (service.tracking.resettle; docs/tracking.md "Settled object joined
     # by the fall's physics"): resettle_delay frames after the last fast step of the loop (> settle_fast_deg per
     # frame), when the steps from resettle_tip_deg per frame on turned >= resettle_min_tip_deg about a horizontal
@@ -486,6 +493,11 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_roll_agree must be in [0, 1], not {self.spin_roll_agree!r}")
         if not 0 <= self.spin_roll_tol < 1:
             raise ValueError(f"TrackingConfig.spin_roll_tol must be in [0, 1), not {self.spin_roll_tol!r}")
+        if self.spin_roll_votes is not None and not self.spin_roll_votes > 0:
+            raise ValueError(f"TrackingConfig.spin_roll_votes must be None or > 0, not {self.spin_roll_votes!r}")
+        if self.spin_roll_radius not in ("contact", "widest"):
+            raise ValueError(f"TrackingConfig.spin_roll_radius must be 'contact' or 'widest', not "
+                             f"{self.spin_roll_radius!r}")
         for name in ("resettle_tip_deg", "resettle_min_tip_deg", "resettle_min_deg", "resettle_min_dist",
                      "resettle_max_shift", "resettle_max_yaw_deg", "resettle_seen"):
             if not getattr(self, name) >= 0:
