@@ -288,7 +288,8 @@ class TrackingConfig:
     # changing faster than spin_roll_rate_deg per frame) takes the roll's spin over the stretch when the texture
     # turned the same way by at least spin_roll_agree of it (a sliding body does not) and lags the roll by more than
     # spin_roll_tol of it; off: the roll is off by up to 50 % where the pushed bottle slips (evaluation 704:
-    # worst frame 7.9° -> 28.7°); docs/tracking.md "Rolling constraint"
+    # worst frame 7.9° -> 28.7°; with spin_fall, fall.with_roll: 8.58° -> 19.41°); docs/tracking.md "Rolling
+    # constraint", "The roll after the landing"
     spin_roll: bool = False
     spin_roll_tilt_deg: float = 10.0
     spin_roll_rate_deg: float = 1.0
@@ -353,7 +354,8 @@ class TrackingConfig:
     # more than spin_fall_rate_deg per frame and by >= spin_fall_min_deg in all, trimmed by spin_fall_edge_deg at
     # both ends) the spin correction takes the increments that leave the tracked rotation no twist about the axis,
     # when the default estimate's spin change over it differs from theirs by more than spin_fall_tol_deg (spin_solver
-    # "mixed" only; not with spin_roll); docs/tracking.md "Fall without spin"
+    # "mixed" only; with spin_roll the rolling stretches after it take the roll where the texture is weak,
+    # fall.with_roll); docs/tracking.md "Fall without spin", "The roll after the landing"
     spin_fall: bool = True  # on: evaluation 704 5.21 -> 2.08 deg median rotation (worst 7.86 -> 9.73), others identical
     spin_fall_rate_deg: float = 0.4
     spin_fall_min_deg: float = 45.0
