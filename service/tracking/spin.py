@@ -563,6 +563,8 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
         rkw = dict(roll or {})
         stretch_kw = {k: rkw.pop(k) for k in ("min_deg", "agree", "tol") if k in rkw}
         rolling, phi, psi = roll_spin(X_WO, Q, a, c, table_z, **rkw)
+    if parts is not None:
+        parts["weak"] = np.zeros(n, bool)
     if not axis[0] or (not fast[1:].any() and not rolling.any()):
         return spin_closure(feats, X_WO, Q, N, **kw)
     first = spin_closure(feats, X_WO, Q, N, **kw)
@@ -571,6 +573,8 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
     if rolling.any():
         rolling = roll_stretches(first.theta, rolling, phi, psi, **stretch_kw)
         rolling[0] = False
+    if parts is not None:
+        parts["weak"] = weak.copy()  # the frames that take the graph's increments (rolling ones aside)
     if not weak.any() and not rolling.any():
         return first
     theta_g = np.zeros(n)
@@ -615,9 +619,14 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
 
 def roll_spin(X_WO: np.ndarray, Q: np.ndarray, a: np.ndarray, c: np.ndarray, table_z: float, *,
               tilt_deg: float = 10.0, margin: float = 0.015, rate_deg: float = 1.0, window: int = 8,
-              min_frames: int = 6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+              min_frames: int = 6, radius: str = "contact") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(rolling (N,) bool, φ (N,) rad roll angle, ψ (N,) rad tracked spin) of the poses X_WO (N,4,4) of a body of
-    revolution with model points Q (M,3) and axis (a, c) in O on a table at height table_z (comment above)."""
+    revolution with model points Q (M,3) and axis (a, c) in O on a table at height table_z (comment above).
+    ``radius``: "contact", the model's median radius at the contacts' median height, candidates from the model's
+    lowest point; "widest", the surface of revolution instead of the model's points: the median radius r of the
+    profile's widest stretch (``lying.straight_stretch`` about (a, c): the generator a lying body rests on), P the
+    axis point nearest the model's centroid, and a frame a candidate when P's height less r cos(elevation) is within
+    ``margin`` of the table (a model seen from one side has no points near the contact)."""
     from scipy.ndimage import median_filter
 
     from service.transforms import so3_log
@@ -628,18 +637,29 @@ def roll_spin(X_WO: np.ndarray, Q: np.ndarray, a: np.ndarray, c: np.ndarray, tab
     hgt = d @ a
     rad = np.linalg.norm(d - np.outer(hgt, a), axis=1)
     aW = R @ a
-    zW = np.einsum("mj,nj->nm", Q, R[:, 2, :]) + t[:, 2:3]  # (N,M) heights of the model points in W
-    zmin = zW.min(1)
-    low = zW < zmin[:, None] + 0.003
-    cand = (np.degrees(np.arcsin(np.clip(np.abs(aW[:, 2]), 0, 1))) < tilt_deg) & (zmin - table_z < margin)
+    el = np.arcsin(np.clip(np.abs(aW[:, 2]), 0, 1))
     rolling = np.zeros(n, bool)
     phi = np.zeros(n)
     psi = np.r_[0.0, np.cumsum([so3_log(R[i - 1].T @ R[i]) @ a for i in range(1, n)])]
-    if cand.sum() < min_frames:
-        return rolling, phi, psi
-    H = float(np.median([np.median(hgt[low[i]]) for i in np.nonzero(cand)[0]]))
-    near = np.abs(hgt - H) < 0.005
-    r = float(np.median(rad[near])) if near.any() else float(np.median(rad))
+    if radius == "widest":  # the body rests on its widest straight stretch (service.tracking.lying)
+        from service.tracking.lying import straight_stretch
+
+        r = straight_stretch(Q, a, c)[2]
+        H = float((Q.mean(0) - c) @ a)
+        Pz = R[:, 2, :] @ (c + H * a) + t[:, 2]
+        cand = (np.degrees(el) < tilt_deg) & (Pz - r * np.cos(el) - table_z < margin)
+        if cand.sum() < min_frames:
+            return rolling, phi, psi
+    else:
+        zW = np.einsum("mj,nj->nm", Q, R[:, 2, :]) + t[:, 2:3]  # (N,M) heights of the model points in W
+        zmin = zW.min(1)
+        low = zW < zmin[:, None] + 0.003
+        cand = (np.degrees(el) < tilt_deg) & (zmin - table_z < margin)
+        if cand.sum() < min_frames:
+            return rolling, phi, psi
+        H = float(np.median([np.median(hgt[low[i]]) for i in np.nonzero(cand)[0]]))
+        near = np.abs(hgt - H) < 0.005
+        r = float(np.median(rad[near])) if near.any() else float(np.median(rad))
     if r < 1e-3:
         return rolling, phi, psi
     P = R @ (c + H * a) + t
@@ -667,14 +687,19 @@ def runs(f: np.ndarray) -> list[tuple[int, int]]:
 
 
 def roll_stretches(first_theta: np.ndarray, rolling: np.ndarray, phi: np.ndarray, psi: np.ndarray, *,
-                   min_deg: float = 10.0, agree: float = 0.3, tol: float = 0.2) -> np.ndarray:
+                   min_deg: float = 10.0, agree: float = 0.3, tol: float = 0.2, votes: np.ndarray | None = None,
+                   strong: float = 60.0) -> np.ndarray:
     """(N,) bool: the rolling frames of the stretches the texture confirms but lags (comment above ``roll_spin``):
     roll |Δφ| ≥ min_deg and the texture's spin change Δτ = Δψ + Δθ (θ = first_theta, the chain's correction; taken
     from the frame before the stretch to its last frame) of the same sign with agree |Δφ| ≤ Δτ sgn Δφ < (1 − tol)
     |Δφ| (a texture within ``tol`` of the roll is kept: the roll's own error, mostly the model's contact radius, is
-    about that large)."""
+    about that large). With ``votes`` (N,) (the chain's vote counts per frame, 0 where a frame has no texture
+    estimate of its own) a stretch whose mean count is at least ``strong`` keeps the texture: the roll replaces the
+    texture only where it is weak."""
     out = np.zeros(len(rolling), bool)
     for s, e in runs(rolling):
+        if votes is not None and np.mean(votes[s:e]) >= strong:
+            continue
         s0 = max(s - 1, 0)
         droll = phi[e - 1] - phi[s0]
         dtex = psi[e - 1] - psi[s0] + first_theta[e - 1] - first_theta[s0]
