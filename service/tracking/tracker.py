@@ -765,6 +765,24 @@ def _resettle_refine(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
     return _model_from(keyframes, cfg.model_voxel) if moved else None
 
 
+def _tip_poses(session, X: np.ndarray, a: int, i: int, pre: list[Keyframe],
+               cfg: TrackingConfig) -> tuple[np.ndarray, list[np.ndarray]] | None:
+    """The tipping motion between the last tracked frame a before a fall and the settled frame i: the leading bottom
+    edge's point (``resettle.leading_pivot``, in W, m: the base of frame 0's footprint placed at X[a], at its extent
+    along the tipping direction, on the table) and the poses X_WO of the turn X[a] → X[i] about it
+    (``resettle.tip_path``, every ``resettle_path_step_deg``); None when ``_fall_base`` finds no tipping direction."""
+    from service.tracking.resettle import leading_pivot, tip_path
+
+    fall = _fall_base(session, X[a], X[i], X[0], pre, cfg)
+    if fall is None:
+        return None
+    f, turn, B = fall
+    pivot = leading_pivot(B @ X[a][:3, :3].T + X[a][:3, 3], f, session.table_height)
+    path = tip_path(X[a], X[i], pivot)
+    n = max(2, int(np.ceil(np.degrees(turn) / cfg.resettle_path_step_deg)))
+    return pivot, [path(k / n) for k in range(n + 1)]
+
+
 def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
                    rmse: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], landings: list,
                    cfg: TrackingConfig) -> list[tuple[int, float, float, bool]]:
@@ -778,7 +796,7 @@ def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
     registration (inlier fraction, residual). Updates X, tracked, frac, rmse in place; returns per checked frame
     (index, rotation and translation from the path, replaced)."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import leading_pivot, path_distance, path_fit, tip_path
+    from service.tracking.resettle import path_distance, path_fit
 
     Q = model.Q[:: max(1, len(model.Q) // 4000)]
     out = []
@@ -791,14 +809,10 @@ def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
         if not before or not pre or not tracked[i]:
             continue
         a = before[-1]
-        fall = _fall_base(session, X[a], X[i], X[0], pre, cfg)
-        if fall is None:
+        tip = _tip_poses(session, X, a, i, pre, cfg)
+        if tip is None:
             continue
-        f, turn, B = fall
-        pivot = leading_pivot(B @ X[a][:3, :3].T + X[a][:3, 3], f, session.table_height)
-        path = tip_path(X[a], X[i], pivot)
-        n = max(2, int(np.ceil(np.degrees(turn) / cfg.resettle_path_step_deg)))
-        poses = [path(k / n) for k in range(n + 1)]
+        _, poses = tip
         for j in range(a + 1, i):
             o = obs[j]
             if len(o.P_W) < cfg.min_points:
@@ -836,7 +850,7 @@ def _resettle_edge(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
     A body with neither a flat side nor a flat face where it lies (the test of ``_resettle_flush``: an egg) is left as
     it is. Updates X, tracked, frac, rmse in place (X_WO in W, m); returns per frame looked at (index, replaced)."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import edge_register, face_plane, has_flat_side, leading_pivot, path_keys, tip_path
+    from service.tracking.resettle import edge_register, face_plane, has_flat_side, path_keys
 
     Q = model.Q[:: max(1, len(model.Q) // 4000)]
     base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
@@ -852,16 +866,12 @@ def _resettle_edge(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
         if not (has_flat_side(M.Q, M.N, base_n) or face_plane(M.Q, M.N, down, np.cos(np.radians(30.0)), 0.03)):
             continue  # a curved body (an egg) has no edge to tip about (the test of _resettle_flush)
         a = before[-1]
-        fall = _fall_base(session, X[a], X[i], X[0], pre, cfg)
-        if fall is None:
+        tip = _tip_poses(session, X, a, i, pre, cfg)
+        if tip is None:
             continue
-        f, turn, B = fall
-        pivot = leading_pivot(B @ X[a][:3, :3].T + X[a][:3, 3], f, session.table_height)
+        pivot, poses = tip
         w = so3_log(X[i][:3, :3] @ X[a][:3, :3].T)
         axis = w / np.linalg.norm(w)
-        path = tip_path(X[a], X[i], pivot)
-        n = max(2, int(np.ceil(np.degrees(turn) / cfg.resettle_path_step_deg)))
-        poses = [path(k / n) for k in range(n + 1)]
         for j in range(a + 1, i):
             o = obs[j]
             if len(o.P_W) < cfg.min_points:
