@@ -79,6 +79,7 @@ def revolution_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float = 0.5, 
     Di = np.diag([1 / L, 1 / L, 1 / L, 1.0, 1.0, 1.0])
     lam, U = np.linalg.eigh(Di @ (J.T @ J) @ Di)
     lam = lam / len(Q)
+    lam, U = _split_tie(lam, U, k)
     u = U[:, k]
     if np.sum(u[:3] ** 2) <= 0.5 or lam[k] >= tau or lam[k] > sep * lam[k + 1]:
         return False, float(lam[k]), np.zeros(3), np.zeros(3)
@@ -87,6 +88,25 @@ def revolution_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float = 0.5, 
     a = w / np.linalg.norm(w)
     c = np.cross(w, v) / float(w @ w) + ctr
     return True, float(lam[k]), a, c
+
+
+def _split_tie(lam: np.ndarray, U: np.ndarray, k: int, rel: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
+    """Eigenpairs (ascending λ, columns of U over (ω/L, v)) with an exact tie at k, k + 1 made definite. A perfect
+    extrusion (a cylinder seen without its ends) leaves the spin about its axis and the slide along it both free:
+    λ_k = λ_{k+1} = 0 up to rounding, and eigh returns any mix of the two, in either order, depending on the last
+    bits of the sums. In a tie (|λ_{k+1} − λ_k| ≤ ``rel`` · λ_max, far below any noise of a measured model) the pair
+    is turned so that column k is its most rotational direction; when the other is then mostly a slide, λ_{k+1}
+    takes λ_{k+2}: the separation test is about two weak *rotations* (an egg), and a slide is not one."""
+    if k + 2 >= len(lam) or abs(lam[k + 1] - lam[k]) > rel * max(abs(lam[-1]), 1e-300):
+        return lam, U
+    V = U[:, k:k + 2]
+    _, E = np.linalg.eigh(V[:3].T @ V[:3])
+    U = U.copy()
+    U[:, k:k + 2] = V @ E[:, ::-1]
+    if np.sum(U[:3, k + 1] ** 2) <= 0.5:
+        lam = lam.copy()
+        lam[k + 1] = lam[k + 2]
+    return lam, U
 
 
 def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, trunc: float = 0.003

@@ -200,3 +200,16 @@ def test_spin_over_cap_not_applied():
     assert np.array_equal(apply_spin(X, r), X)
     r = spin_closure(f, X, Q, N, **KW, max_deg=120.0)
     assert not r.rejected and np.degrees(np.max(np.abs(r.theta))) > 40
+
+
+def test_perfect_cylinder_axis_whatever_the_point_order():
+    """A cylinder seen without its ends leaves spin and slide along the axis both free (a tie of two zero
+    eigenvalues): the axis is found for every order of the points (before the tie was split, 8 orders in 40)."""
+    Q, N = _cylinder_model()
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        p = rng.permutation(len(Q))
+        ok, lam, a, c = revolution_axis(Q[p], N[p], 0.02, 0.5)
+        assert ok and lam < 1e-9
+        assert abs(a[0]) > 0.999  # the x axis
+        assert abs(c[1]) < 1e-6 and abs(c[2] - R_CYL) < 1e-6  # through (·, 0, R)
