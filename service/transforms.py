@@ -42,6 +42,19 @@ def so3_exp(r: np.ndarray) -> np.ndarray:
     return eye + a * K + b * (K @ K)
 
 
+def horizontal_turn(a: np.ndarray) -> tuple[np.ndarray, float, float] | None:
+    """The least rotation that makes the unit vector ``a`` (3,) (in W) horizontal: (v, s, θ) with v = a × h (h the
+    unit horizontal direction of a), s = |v| = sin θ and θ (rad) the angle from a to h, so the rotation is about
+    v / s by θ (none needed when s is 0). None when a is vertical (no horizontal direction of its own)."""
+    h = np.array([a[0], a[1], 0.0])
+    if np.linalg.norm(h) < 1e-9:
+        return None
+    h /= np.linalg.norm(h)
+    v = np.cross(a, h)
+    s = float(np.linalg.norm(v))
+    return v, s, float(np.arctan2(s, a @ h))
+
+
 def so3_log(R: np.ndarray) -> np.ndarray:
     """Rotation matrix (…,3,3) -> rotation vector (…,3), angle in [0, π]."""
     return quat_to_rotvec(mat_to_quat(R))

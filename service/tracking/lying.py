@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.tracking.spin import plane_basis
+from service.transforms import horizontal_turn
 
 
 def axis_centre(Q: np.ndarray, a: np.ndarray, bin_m: float = 0.005, min_pts: int = 30) -> np.ndarray | None:
@@ -105,17 +106,11 @@ def lying_frames(X_WO: np.ndarray, a: np.ndarray, p_O: np.ndarray, radius: float
 def level_pose(X: np.ndarray, a: np.ndarray, p_O: np.ndarray) -> tuple[np.ndarray, float]:
     """(pose (4,4), angle (rad)): the pose X (4,4) turned about the horizontal line through its point p_O (3,) (in
     O) by the smallest rotation that makes its axis a (3,) horizontal in W."""
-    aW = X[:3, :3] @ a
-    hW = np.array([aW[0], aW[1], 0.0])
-    if np.linalg.norm(hW) < 1e-9:
+    turn = horizontal_turn(X[:3, :3] @ a)
+    if turn is None or turn[1] < 1e-12:
         return X.copy(), 0.0
-    hW /= np.linalg.norm(hW)
-    v = np.cross(aW, hW)
-    s = float(np.linalg.norm(v))
-    if s < 1e-12:
-        return X.copy(), 0.0
+    v, s, th = turn
     k = v / s
-    th = float(np.arctan2(s, aW @ hW))
     K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
     Rd = np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * K @ K
     p = X[:3, :3] @ p_O + X[:3, 3]

@@ -68,7 +68,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.transforms import X_inv, make_X, pose_distance, so3_exp, so3_log
+from service.transforms import X_inv, horizontal_turn, make_X, pose_distance, so3_exp, so3_log
 
 
 def _step(X: np.ndarray, k: int, j: int) -> float:
@@ -588,14 +588,10 @@ def side_pose(X: np.ndarray, Q_O: np.ndarray, base_n_O: np.ndarray, tol: float =
     it lies on was never seen (``landed_face`` None), so only the tilt that turns the base is known. Returns (the
     pose, the tilt removed in degrees)."""
     R, t = X[:3, :3], X[:3, 3]
-    a = R @ (base_n_O / np.linalg.norm(base_n_O))
-    b = np.array([a[0], a[1], 0.0])
-    if np.linalg.norm(b) < 1e-9:
+    turn = horizontal_turn(R @ (base_n_O / np.linalg.norm(base_n_O)))
+    if turn is None:
         return X.copy(), 90.0
-    b /= np.linalg.norm(b)
-    v = np.cross(a, b)
-    s = float(np.linalg.norm(v))
-    ang = float(np.arctan2(s, a @ b))
+    v, s, ang = turn
     Rc = so3_exp(v / s * ang) if s > 1e-12 else np.eye(3)
     P = Q_O @ R.T + t
     c = P[P[:, 2] < P[:, 2].min() + tol].mean(0)
@@ -614,3 +610,10 @@ def has_flat_side(Q_O: np.ndarray, N_O: np.ndarray, base_n_O: np.ndarray) -> boo
     sub = S[:: max(1, len(S) // 300)]
     d = sub[int(np.argmax([(S @ s > np.cos(np.radians(20.0))).sum() for s in sub]))]
     return face_plane(Q_O, N_O, d, np.cos(np.radians(30.0)), 0.03) is not None
+
+
+def rests_flat(Q_O: np.ndarray, N_O: np.ndarray, base_n_O: np.ndarray, down_O: np.ndarray) -> bool:
+    """Whether the model (Q_O, N_O (M,3), in O) has a face to rest on: a flat side (``has_flat_side``, base normal
+    ``base_n_O``) or a flat face where it lies (``face_plane`` about the downward direction ``down_O`` (3,), normals
+    within 30°, at least 3 % of the points). A curved body such as an egg has neither."""
+    return bool(has_flat_side(Q_O, N_O, base_n_O) or face_plane(Q_O, N_O, down_O, np.cos(np.radians(30.0)), 0.03))
