@@ -850,7 +850,7 @@ def _resettle_edge(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
     A body with neither a flat side nor a flat face where it lies (the test of ``_resettle_flush``: an egg) is left as
     it is. Updates X, tracked, frac, rmse in place (X_WO in W, m); returns per frame looked at (index, replaced)."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import edge_register, face_plane, has_flat_side, path_keys
+    from service.tracking.resettle import edge_register, path_keys, rests_flat
 
     Q = model.Q[:: max(1, len(model.Q) // 4000)]
     base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
@@ -863,7 +863,7 @@ def _resettle_edge(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
             continue
         M = _model_from(pre, cfg.model_voxel)
         down = X[i][:3, :3].T @ np.array([0.0, 0.0, -1.0])
-        if not (has_flat_side(M.Q, M.N, base_n) or face_plane(M.Q, M.N, down, np.cos(np.radians(30.0)), 0.03)):
+        if not rests_flat(M.Q, M.N, base_n, down):
             continue  # a curved body (an egg) has no edge to tip about (the test of _resettle_flush)
         a = before[-1]
         tip = _tip_poses(session, X, a, i, pre, cfg)
@@ -905,7 +905,7 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
     the object stood on at frame 0) is laid flush with the table (``resettle.flush_pose``) in every frame of the stretch
     whose pose has it within ``resettle_flush_deg`` of flat (an object at rest on a face has it on the table; when
     the pre-fall model has no such face, only the base it stood on is made vertical, ``resettle.side_pose``; a body
-    with neither a flat side, ``resettle.has_flat_side``, nor a flat face where it lies, ``resettle.face_plane``, such
+    with neither a flat side nor a flat face where it lies (``resettle.rests_flat``), such
     as an egg, is left as it is); the
     stretch's keyframes move with their frames and the model is rebuilt (the surface seen after the landing placed by
     the constrained poses); then every such frame is registered again in the motions that keep it resting
@@ -913,7 +913,7 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
     is a good registration. Updates X, tracked, frac, rmse, keyframes and carver in place; returns the rebuilt model,
     or None when no frame changed."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import face_plane, flush_pose, has_flat_side, landed_face, planar_register, side_pose
+    from service.tracking.resettle import flush_pose, landed_face, planar_register, rests_flat, side_pose
 
     base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
     done: list[int] = []
@@ -925,7 +925,7 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
             continue
         M = _model_from(pre, cfg.model_voxel)
         down = X[i][:3, :3].T @ np.array([0.0, 0.0, -1.0])  # the face it lies on, in O
-        if not (has_flat_side(M.Q, M.N, base_n) or face_plane(M.Q, M.N, down, np.cos(np.radians(30.0)), 0.03)):
+        if not rests_flat(M.Q, M.N, base_n, down):
             continue  # a curved body (an egg): no flat face to rest on
         face = landed_face(M.Q, M.N, X[i], session.table_height, tol=0.03, base_n_O=base_n,
                            square_deg=cfg.resettle_flush_square_deg)
