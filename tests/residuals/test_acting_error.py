@@ -10,10 +10,9 @@ from service.report.json import residuals_section
 from service.residuals import run
 from service.residuals.effects import REGISTRY, Effect
 from service.residuals.loop import Segment, acting_errors
-from service.residuals.types import MODES, ObservedTrajectory, ResidualConfig, ResidualInputs
-from service.transforms import make_X, so3_exp
+from service.residuals.types import MODES, ResidualConfig, ResidualInputs
 from tests.residuals.lab import cube_model
-from tests.residuals.test_crossfit import H, _ballistic, _steps
+from tests.residuals.test_crossfit import H, _ballistic, _tosses
 
 
 def test_each_effect_declares_the_component_it_acts_on():
@@ -54,29 +53,11 @@ def test_acting_error_takes_the_component_on_the_frames_of_the_modes():
     assert acting("restitution") == pytest.approx(np.mean([16.0 + 1600.0, 32.0 + 3200.0]))
 
 
-def _spinning_tosses(n, g_scale, seed, frames=30, noise_m=1.5e-4, spin=0.7):
-    """Free-flight tosses (as test_crossfit's) whose observed orientation turns at ``spin`` rad/s about z, which the
-    closed-form simulator does not reproduce: a rotation error that no gravity can change."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(n):
-        p = np.array([0.0, 0.0, 1.0]) + rng.normal(0, 0.1, 3)
-        v = rng.normal(0, 0.5, 3) + [0.0, 0.0, 1.0]
-        P = []
-        for _k in range(frames):
-            P.append(p.copy())
-            p, v = _steps(p, v, np.array([0.0, 0.0, -9.81 * g_scale]), H)
-        X = np.stack([make_X(so3_exp(np.array([0.0, 0.0, spin * k * H])), q + rng.normal(0, noise_m, 3))
-                      for k, q in enumerate(P)])
-        out.append(ObservedTrajectory(t=np.arange(frames) * H, X_WO=X))
-    return tuple(out)
-
-
 @pytest.mark.parametrize("folds", [1, 2])
 def test_the_loop_reports_gravity_on_the_position_error_of_its_frames(folds):
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=("gravity_scale",), max_effects=1, fit_maxiter=24,
                               folds=folds)
-    out = run(ResidualInputs(cube_model(), _spinning_tosses(12, 0.9, seed=5), -10.0, simulate=_ballistic), cfg)
+    out = run(ResidualInputs(cube_model(), _tosses(12, 0.9, seed=5, spin=0.7), -10.0, simulate=_ballistic), cfg)
     assert out.accepted == ("gravity_scale",), [c.reason for c in out.candidates]
     c = out.candidates[0]
     assert c.acts_on == {"modes": ["free_flight"], "component": "position"}

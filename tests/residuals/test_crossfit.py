@@ -12,7 +12,7 @@ from service.residuals import run
 from service.residuals.crossfit import fold_segments
 from service.residuals.loop import Segment
 from service.residuals.types import ObservedTrajectory, ResidualConfig, ResidualInputs
-from service.transforms import make_X
+from service.transforms import make_X, so3_exp
 from tests.residuals.lab import cube_model
 
 H = 1.0 / 148.0
@@ -38,7 +38,10 @@ def _ballistic(req):
     return X
 
 
-def _tosses(n, g_scale, seed, frames=30, noise_m=1.5e-4):
+def _tosses(n, g_scale, seed, frames=30, noise_m=1.5e-4, spin=0.0):
+    """Free-flight tosses under gravity g_scale·g with position noise; ``spin`` (rad/s) > 0: the observed orientation
+    turns at that rate about z, which the closed-form simulator does not reproduce (a rotation error that no gravity
+    can change)."""
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(n):
@@ -48,7 +51,8 @@ def _tosses(n, g_scale, seed, frames=30, noise_m=1.5e-4):
         for _k in range(frames):
             P.append(p.copy())
             p, v = _steps(p, v, np.array([0.0, 0.0, -9.81 * g_scale]), H)
-        X = np.stack([make_X(np.eye(3), q + rng.normal(0, noise_m, 3)) for q in P])
+        X = np.stack([make_X(np.eye(3) if spin == 0.0 else so3_exp(np.array([0.0, 0.0, spin * k * H])),
+                             q + rng.normal(0, noise_m, 3)) for k, q in enumerate(P)])
         out.append(ObservedTrajectory(t=np.arange(frames) * H, X_WO=X))
     return tuple(out)
 
