@@ -121,7 +121,7 @@ class ResidualConfig:
     # stretch around its start (at most half of them on either side; loop.flight_window). Ballistic motion is a
     # quadratic in time (and torque-free rotation nearly a line), so the longer window only averages more pose noise
     # (velocity error ~ 1/sqrt(sum tau^2)); the blocks and every other start state are unchanged. 0 = off (the default:
-    # on toss seeds 39-42 the error where an effect acts fell on 10 of 12 cells, but one restitution was lost;
+    # on toss seeds 39-42 the error where an effect acts fell on 14 of 16 cells, but one restitution was lost;
     # docs/residuals.md §7, "The floor the right model keeps")
     init_fit_frames_flight: int = 0
     # a block that starts in free flight: its start state fitted on its (flight) fit window with each model's own
