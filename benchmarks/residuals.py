@@ -154,7 +154,8 @@ def synthetic(args) -> None:
     cands = ("gravity_scale", "restitution", "table_offset", "linear_damping", "angular_damping")
     # 12 training blocks and 24 evaluations per fit, as tests/residuals/test_recover_angular_damping.py
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, max_train_segments=12, fit_maxiter=24,
-                              unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check)
+                              unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check,
+                              **json.loads(args.config))
     import resource
 
     rows = []
@@ -473,6 +474,8 @@ def main() -> None:
     s.add_argument("--cases", nargs="+", default=None,
                    help="subset of: none gravity_scale restitution table_offset linear_damping angular_damping")
     s.add_argument("--no-pushing", action="store_true")
+    s.add_argument("--config", default="{}",
+                   help='JSON of ResidualConfig fields for the toss cases, e.g. \'{"init_fit_frames_flight": 41}\'')
     lb = sub.add_parser("lab")
     lb.add_argument("--seeds", type=int, nargs="+", default=[601, 602])
     lb.add_argument("--cases", nargs="+", default=list(LAB_CASES), choices=list(LAB_CASES))

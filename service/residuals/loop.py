@@ -105,6 +105,10 @@ class Segment:
     v0: np.ndarray  # (3,)
     w0: np.ndarray  # (3,)
     robot: RobotPath | None
+    # a start in free flight with ``ResidualConfig.flight_start_model``: the fit window (t (k,), X_WO (k,4,4), index of
+    # the start frame in it, simulator step h); the start state is then fitted per model (``flight_start_state``) and
+    # X0, v0, w0 above are the model-free quadratic's (reported, and used by nothing that rolls out)
+    fit: tuple | None = None
 
 
 def smooth_robot(robot: RobotPath | None, cfg: ResidualConfig) -> RobotPath | None:
@@ -172,12 +176,91 @@ def start_state(t: np.ndarray, X: np.ndarray, at: int, h: float) -> tuple[np.nda
     return X0, cp[1] - 0.5 * h * acc_p, cr[1] - 0.5 * h * acc_r
 
 
+def _decay_basis(tau: np.ndarray, b: float) -> tuple[np.ndarray, np.ndarray]:
+    """φ(τ) = (1 − e^{−bτ})/b and ψ(τ) = (τ − φ)/b (→ τ and τ²/2 as b → 0): under dv/dτ = a − b v a start velocity
+    u moves a point by u φ(τ) and the constant a by a ψ(τ)."""
+    if abs(b) * float(np.max(np.abs(tau), initial=0.0)) < 1e-4:
+        return tau - 0.5 * b * tau**2, 0.5 * tau**2 - b * tau**3 / 6.0
+    phi = -np.expm1(-b * tau) / b
+    return phi, (tau - phi) / b
+
+
+def flight_start_state(t: np.ndarray, X: np.ndarray, at: int, h: float, model: ObjectModel,
+                       effects: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Start pose X_WO (4,4), velocity v_WO_W (3,) and body spin w_WO_O (3,) at frame ``at`` of a free-flight window
+    (t (k,) s, X (k,4,4) X_WO), fitted with the flight dynamics of ``model`` under ``effects`` (simulator keys on top
+    of ``model.effects``) instead of a free quadratic.
+
+    Centre of mass p_c = p + R c_O: dp_c/dτ = v, dv/dτ = a − b v with a = the model's gravity (``gravity_vector``:
+    scale, tilt) and b its linear damping, so p_c(τ) = p₀ + u φ_b(τ) + a ψ_b(τ) (``_decay_basis``), linear in (p₀, u).
+    Spin in O: dω/dτ = I⁻¹((Iω) × ω) − b_ω ω (Euler's torque-free equations and the angular damping); over the short
+    window the rotation vector r = Log(R_atᵀ R) ≈ r₀ + u_ω φ_{b_ω}(τ) + c ψ_{b_ω}(τ), with the gyroscopic
+    c = I⁻¹((Iω̂) × ω̂) from the model-free quadratic's ω̂ (zero for an isotropic body). Times in data seconds
+    (``time_scale`` s: a s², b s). As in ``start_state``, the semi-implicit Euler step h makes the start velocity the
+    fitted derivative at τ = −h/2: v₀ = u − (h/2)(a − b u) (likewise ω₀). The simulator starts the CoM with
+    v₀ + ω × R c_O, so the returned v_WO_W = v₀ − ω_W × (R₀ c_O).
+    """
+    from service.residuals.simulate import gravity_vector
+
+    eff = {**model.effects, **effects}
+    s = float(eff.get("time_scale", 1.0))
+    a = gravity_vector(eff) * s**2
+    b = float(eff.get("linear_damping", 0.0)) * s
+    b_w = float(eff.get("angular_damping", 0.0)) * s
+    tau = t - t[at]
+    c_O = np.asarray(model.com_O, float)
+    R = X[:, :3, :3]
+    pc = X[:, :3, 3] + R @ c_O
+    phi, psi = _decay_basis(tau, b)
+    A = np.stack([np.ones_like(tau), phi], 1)
+    (p0, u), *_ = np.linalg.lstsq(A, pc - psi[:, None] * a[None], rcond=None)
+    v0 = u - 0.5 * h * (a - b * u)
+    R_ref = R[at]
+    r = quat_to_rotvec(mat_to_quat(np.swapaxes(R_ref, 0, 1)[None] @ R))
+    _, _, w_hat = start_state(t, X, at, h)
+    I = np.asarray(model.inertia_O, float)
+    c = np.linalg.solve(I, np.cross(I @ w_hat, w_hat))
+    phi_w, psi_w = _decay_basis(tau, b_w)
+    A = np.stack([np.ones_like(tau), phi_w], 1)
+    (r0, uw), *_ = np.linalg.lstsq(A, r - psi_w[:, None] * c[None], rcond=None)
+    w0 = uw - 0.5 * h * (c - b_w * uw)
+    R0 = R_ref @ so3_exp(r0)
+    p_O = p0 - R0 @ c_O
+    return make_X(R0, p_O), v0 - np.cross(R0 @ w0, R0 @ c_O), w0
+
+
 def _fit_window_ok(mode: np.ndarray) -> bool:
     """A start-state window must not straddle an impact or a flight/contact change."""
     if (mode == IMPACT).any():
         return False
     free = mode == FREE
     return bool(free.all() or (~free).all())
+
+
+def flight_window(mode: np.ndarray, tracked: np.ndarray, at: int, n_max: int, lo: int = 0,
+                  hi: int | None = None) -> tuple[int, int]:
+    """Frames [a, b) of the free-flight stretch containing frame ``at``: tracked free-flight frames contiguous with it,
+    at most ``n_max // 2`` on either side, within [lo, hi). (a, a) when ``at`` itself is not a tracked free-flight
+    frame.
+
+    The start-state fit of a block that starts in free flight (``ResidualConfig.init_fit_frames_flight``): in flight
+    the centre of mass follows a parabola whatever the gravity, and a body's rotation vector relative to its pose at
+    ``at`` is a line in time up to the slow change of ω by Euler's equations or a damping, so a quadratic fit over the
+    whole stretch is still right and averages more pose noise than the short centred window (the spin error of the
+    9-frame window, ≈ 0.1 rad/s at 148 Hz with 2.9 mrad of pose noise, is what a tumbling toss amplifies at its next
+    bounce). Contact is not smooth, so the window never leaves the flight.
+    """
+    hi = len(mode) if hi is None else hi
+    if not (lo <= at < hi and mode[at] == FREE and tracked[at]):
+        return at, at
+    half = max(0, n_max // 2)
+    a = at
+    while a > max(lo, at - half) and mode[a - 1] == FREE and tracked[a - 1]:
+        a -= 1
+    b = at + 1
+    while b < min(hi, at + half + 1) and mode[b] == FREE and tracked[b]:
+        b += 1
+    return a, b
 
 
 def launches(t: np.ndarray, X: np.ndarray, tracked: np.ndarray, cfg: ResidualConfig) -> list[tuple[int, int]]:
@@ -217,7 +300,9 @@ def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: Residual
     its first frame (clipped at the trajectory ends): centring keeps the velocity error of tracking
     noise ~4x below a one-sided fit. The same start state serves every model compared, so the paired
     comparison stays fair. Blocks whose fit window straddles an impact or a flight/contact change are
-    skipped.
+    skipped. With ``init_fit_frames_flight`` a block that starts in free flight has its start state fitted on its
+    free-flight stretch instead (``flight_window``: up to that many frames around the start, when that is more than
+    the centred window); which blocks exist does not change.
 
     With a robot, every impulsive launch from rest (``launches``: a strike) gets a block of its own, from
     ``launch_lead`` frames before its onset to where the object has settled (the launch, the free slide and
@@ -266,11 +351,21 @@ def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: Residual
                 and tracked[i]
                 and _fit_window_ok(mode[w0:w1])
             )
+            if ok and i not in ev_start and cfg.init_fit_frames_flight > w1 - w0:
+                # a start in flight: the start state from the flight's frames around it (flight_window); the
+                # block was kept or skipped on the centred window above, so the blocks do not change
+                a, b = flight_window(mode, tracked, i, cfg.init_fit_frames_flight, hi=nxt if nxt is not None and nxt > i else n)
+                if b - a > w1 - w0:
+                    w0, w1 = a, b
+                    at = i - w0
             if ok:
                 dt = float(np.median(np.diff(t[w0:max(w1, w0 + 2)])))
                 h = dt / max(1, math.ceil(dt / cfg.sim_substep_s - 1e-9))
                 X0, v0, om0 = start_state(t[w0:w1], X[w0:w1], at, h)
-                segs.append(Segment(k, i, j, t[i:j], X[i:j], tracked[i:j], mode[i:j], X0, v0, om0, robot))
+                fit = None
+                if cfg.flight_start_model and i not in ev_start and (mode[w0:w1] == FREE).all():
+                    fit = (t[w0:w1].copy(), X[w0:w1].copy(), at, h)
+                segs.append(Segment(k, i, j, t[i:j], X[i:j], tracked[i:j], mode[i:j], X0, v0, om0, robot, fit))
             i = j if ok else i + 1
     return segs
 
@@ -350,7 +445,8 @@ class Evaluator:
 
     def rollout(self, model: ObjectModel, effects: dict[str, float], seg: Segment) -> np.ndarray:
         self.calls += 1
-        req = SimRequest(model, seg.X0, seg.v0, seg.w0, seg.t, self.table_height, seg.robot, effects)
+        X0, v0, w0 = (seg.X0, seg.v0, seg.w0) if seg.fit is None else flight_start_state(*seg.fit, model, effects)
+        req = SimRequest(model, X0, v0, w0, seg.t, self.table_height, seg.robot, effects)
         return self.simulate(req)
 
     def frame_errors(self, model, effects, seg) -> tuple[np.ndarray, np.ndarray]:
