@@ -47,6 +47,12 @@ G = 9.81
 CONSTRAINT_ERP = 0.2
 CONSTRAINT_LEAD_STEPS = (1.0 - CONSTRAINT_ERP) / CONSTRAINT_ERP
 FAR_ABOVE_M = 50.0  # where the robot sphere is parked for tosses without a robot (service.sim needs one)
+# Bullet's contact breaking threshold (gContactBreakingThreshold, a process-wide global, 0.02 m by default): a pair
+# closer than this gets a contact point before it touches. Bullet applies the restitution of a contact only while the
+# point is new, so a point made several sub-steps before the touch carries none when the touch comes: a strike at
+# 0.3-0.7 m/s lost its bounce in 1 to 10 of 10 contact phases (docs/residuals.md §6). ``contact_breaking_m`` sets it for
+# the rollouts of one simulator and puts this default back after each rollout (other Bullet users share the global).
+BULLET_CONTACT_BREAKING_M = 0.02
 
 
 def gravity_vector(effects: dict[str, float]) -> np.ndarray:
@@ -75,13 +81,16 @@ def _frictions(model: ObjectModel, eff: dict[str, float]) -> tuple[float, float]
 class BulletSimulator:
     """Callable ``SimRequest -> (T,4,4)`` rollouts; owns one pybullet DIRECT client (call ``close``)."""
 
-    def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0):
+    def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0, contact_breaking_m: float | None = None):
         import pybullet
 
+        if contact_breaking_m is not None and not contact_breaking_m > 0:
+            raise ValueError(f"contact_breaking_m must be > 0 m or None, not {contact_breaking_m!r}")
         self._p = pybullet
         self._cid = pybullet.connect(pybullet.DIRECT)
         self.substep = float(sim_substep_s)
         self.margin = float(collision_margin)
+        self.contact_breaking = None if contact_breaking_m is None else float(contact_breaking_m)
         self._hulls: dict = {}
 
     def _hull_vertices(self, model: ObjectModel) -> np.ndarray:
@@ -126,9 +135,20 @@ class BulletSimulator:
         self.close()
 
     def __call__(self, req: SimRequest) -> np.ndarray:
-        p, cid = self._p, self._cid
-        if cid is None:
+        """(T,4,4) X_WO of the rollout at the request's times (W, m)."""
+        if self._cid is None:
             raise RuntimeError("simulator is closed")
+        if self.contact_breaking is None:
+            return self._rollout(req)
+        p = self._p
+        p.setPhysicsEngineParameter(contactBreakingThreshold=self.contact_breaking, physicsClientId=self._cid)
+        try:
+            return self._rollout(req)
+        finally:  # a process-wide global in Bullet: leave it as other users expect it
+            p.setPhysicsEngineParameter(contactBreakingThreshold=BULLET_CONTACT_BREAKING_M, physicsClientId=self._cid)
+
+    def _rollout(self, req: SimRequest) -> np.ndarray:
+        p, cid = self._p, self._cid
         eff = {**req.model.effects, **req.effects}
         model = req.model
         t = np.asarray(req.t, float)
@@ -220,9 +240,10 @@ class BulletSimulator:
         return out
 
 
-def make_simulator(sim_substep_s: float = 0.002) -> BulletSimulator:
-    """The built-in simulator used when the caller injects none."""
-    return BulletSimulator(sim_substep_s)
+def make_simulator(sim_substep_s: float = 0.002, contact_breaking_m: float | None = None) -> BulletSimulator:
+    """The built-in simulator used when the caller injects none (``ResidualConfig.sim_substep_s`` and
+    ``ResidualConfig.contact_breaking_m``)."""
+    return BulletSimulator(sim_substep_s, contact_breaking_m=contact_breaking_m)
 
 
 def service_sim_simulator(sim_cfg=None):
