@@ -47,11 +47,11 @@ G = 9.81
 CONSTRAINT_ERP = 0.2
 CONSTRAINT_LEAD_STEPS = (1.0 - CONSTRAINT_ERP) / CONSTRAINT_ERP
 FAR_ABOVE_M = 50.0  # where the robot sphere is parked for tosses without a robot (service.sim needs one)
-# Bullet's contact breaking threshold (gContactBreakingThreshold, a process-wide global, 0.02 m by default): a pair
-# closer than this gets a contact point before it touches. Bullet applies the restitution of a contact only while the
-# point is new, so a point made several sub-steps before the touch carries none when the touch comes: a strike at
-# 0.3-0.7 m/s lost its bounce in 1 to 10 of 10 contact phases (docs/residuals.md §6). ``contact_breaking_m`` sets it for
-# the rollouts of one simulator and puts this default back after each rollout (other Bullet users share the global).
+# Bullet's contact breaking threshold (gContactBreakingThreshold, a process-wide global, 0.02 m by default): pairs closer
+# than this get contact points before they touch. Measured (docs/residuals.md §6): when the point exists for many
+# sub-steps before a strike touches, the strike's bounce is lost — with 0.02 m and 2 ms sub-steps in 5-7 of 12 contact
+# phases (e = 0.3, 0.35-0.6 m/s; at 1 ms in all), with 1-2 mm in none. ``contact_breaking_m`` sets it for the rollouts
+# of one simulator and puts this default back after each rollout (other Bullet users in the process share the global).
 BULLET_CONTACT_BREAKING_M = 0.02
 
 

@@ -119,9 +119,9 @@ class ResidualConfig:
     init_fit_frames: int = 9  # start state from a quadratic fit over this many frames centred on the start
     sim_substep_s: float = 0.002  # max physics step of the built-in simulator
     # contact breaking threshold of the built-in simulator, m (None: Bullet's 0.02 m): pairs closer than this get a
-    # contact point before they touch, and Bullet gives a contact its restitution only while the point is new, so
-    # with 0.02 m a strike's bounce was lost in most contact phases; 1 mm is about the gap a 0.5 m/s strike closes in
-    # one sub-step, so the point is made at the touch (docs/residuals.md §6)
+    # contact point before they touch; with 0.02 m a strike's bounce was lost in 5-7 of 12 contact phases (the point
+    # made many sub-steps ahead of the touch), with 1 mm (about the gap a 0.5 m/s strike closes in one 2 ms sub-step)
+    # in none (docs/residuals.md §6)
     contact_breaking_m: float | None = None
     contact_tol_m: float = 0.004  # gap below which the table counts as touching (mode classifier)
     rest_speed: float = 0.03  # m/s, below this (and touching) the object is at rest

@@ -1,9 +1,8 @@
 """The built-in simulator's strike bounce: a sphere driven along a path hits a resting cube on a frictionless table.
 
 A kinematically driven sphere striking through the CoM launches the cube at (1 + e) v. With Bullet's default
-contact breaking threshold (0.02 m) the contact point is made sub-steps before the touch and carries no restitution
-when the touch comes, so the bounce is lost in some contact phases; with ``contact_breaking_m`` = 1 mm the point is
-made at the touch (docs/residuals.md §6).
+contact breaking threshold (0.02 m) the contact point is made many sub-steps before the touch and the bounce is lost in
+some contact phases (here 2 of the 6); with ``contact_breaking_m`` = 1 mm it is kept in all (docs/residuals.md §6).
 """
 
 from __future__ import annotations
