@@ -3,12 +3,14 @@ for diagnosis only, never part of the service.
 
     python benchmarks/strike_restitution.py phases [--speeds 0.35 0.45 0.6] [--phases 12]
     python benchmarks/strike_restitution.py blocks --seeds 666 667 [--pose-noise 0] [--contact-breaking off 0.001]
+        [--contact-erp 0.05]
 
 ``phases``: a 10 kg sphere strikes a resting 0.3 kg box (9.5 x 6.5 x 12.5 cm) through its CoM on a frictionless table;
 the box's launch speed with e = 0.3 over the one with e = 0 (the physics: 1.3 for a heavy striker) over contact
 phases (start gaps uniform over 5 mm, so the touch falls anywhere within a sub-step). Rows: the loop's simulator
-(``BulletSimulator``: sphere dragged along its path, 2 ms sub-steps) with Bullet's contact breaking threshold and with
-1 mm, and a world with the synthetic lab's settings (240 Hz steps, Bullet's default restitution threshold 0.2 m/s and
+(``BulletSimulator``: sphere dragged along its path, 2 ms sub-steps) with Bullet's contact breaking threshold, with
+1 mm, and with 1 mm and a contact erp of 0.05 (the e = 0 launch over v is printed too: the push-out of a contact that
+starts inside the object), and a world with the synthetic lab's settings (240 Hz steps, Bullet's default restitution threshold 0.2 m/s and
 contact breaking 0.02 m, a free sphere moving at the strike speed).
 
 ``blocks``: a synthetic-lab strike session with a hidden restitution 0.3 (the settings of ``benchmarks/residuals.py
@@ -92,18 +94,20 @@ def phases(args) -> None:
 
     gaps = 0.03 + np.random.default_rng(args.seed).uniform(0.0, 0.005, args.phases)
     for v in args.speeds:
-        rows = [("lab settings (4.17 ms, restitution threshold 0.2 m/s, contact breaking 0.02 m)", None)]
-        rows += [(f"loop's simulator, contact breaking {'0.02 m (Bullet)' if cb is None else f'{cb * 1e3:g} mm'}", cb)
-                 for cb in (None, 0.001)]
-        for name, cb in rows:
+        rows = [("lab settings (4.17 ms, restitution threshold 0.2 m/s, contact breaking 0.02 m)", None, None)]
+        rows += [(f"loop's simulator, contact breaking {'0.02 m (Bullet)' if cb is None else f'{cb * 1e3:g} mm'}, contact "
+                  f"erp {'Bullet' if erp is None else erp}", cb, erp) for cb, erp in ((None, None), (0.001, None), (0.001, 0.05))]
+        for name, cb, erp in rows:
             if name.startswith("lab"):
-                q = np.array([_lab_like_launch(v, E_TRUE, g) / _lab_like_launch(v, 0.0, g) for g in gaps])
+                l0 = np.array([_lab_like_launch(v, 0.0, g) for g in gaps])
+                q = np.array([_lab_like_launch(v, E_TRUE, g) for g in gaps]) / l0
             else:
-                with BulletSimulator(0.002, contact_breaking_m=cb) as sim:
-                    q = np.array([_loop_launch(sim, v, E_TRUE, g) / _loop_launch(sim, v, 0.0, g) for g in gaps])
+                with BulletSimulator(0.002, contact_breaking_m=cb, contact_erp=erp) as sim:
+                    l0 = np.array([_loop_launch(sim, v, 0.0, g) for g in gaps])
+                    q = np.array([_loop_launch(sim, v, E_TRUE, g) for g in gaps]) / l0
             print(f"v {v:.2f} m/s, {name}: launch(e=0.3)/launch(e=0) mean {q.mean():.3f}, bounce lost (< 1.1) in "
                   f"{int((q < 1.1).sum())}/{len(q)}, partly (1.1-1.25) in {int(((q >= 1.1) & (q < 1.25)).sum())}; "
-                  + " ".join(f"{x:.2f}" for x in q), flush=True)
+                  + " ".join(f"{x:.2f}" for x in q) + f"; launch(e=0)/v {l0.min():.3f}-{l0.max():.3f}", flush=True)
 
 
 def blocks(args) -> None:
@@ -131,12 +135,14 @@ def blocks(args) -> None:
         S, M = [segs[i] for i in keep], [masks[i] for i in keep]
         for cb in args.contact_breaking:
             cbv = None if cb == "off" else float(cb)
-            with BulletSimulator(cfg.sim_substep_s, contact_breaking_m=cbv) as sim:
+            erp = None if cbv is None or args.contact_erp == "off" else float(args.contact_erp)
+            with BulletSimulator(cfg.sim_substep_s, contact_breaking_m=cbv, contact_erp=erp) as sim:
                 ev = Evaluator(sim, ls.table_height, object_radius(model))
                 E = np.array([reduce_blocks(ev.frame_scalar(model, {"restitution": e}, S), M) for e in grid]) * 1e3
             i3 = int(np.flatnonzero(grid == E_TRUE)[0])
             best = grid[np.argmin(E, 0)]
-            print(f"seed {seed}, pose noise {args.pose_noise * 1e3:g} mm, contact breaking {cb}: {len(S)} blocks where "
+            print(f"seed {seed}, pose noise {args.pose_noise * 1e3:g} mm, contact breaking {cb}, contact erp "
+                  f"{'Bullet' if erp is None else erp}: {len(S)} blocks where "
                   f"restitution acts; block error e=0 {E[0].mean():.2f} mm (median {np.median(E[0]):.2f}), true e "
                   f"{E[i3].mean():.2f} mm (median {np.median(E[i3]):.2f}), true/e=0 {E[i3].mean() / E[0].mean():.2f}, "
                   f"better/worse {int((E[i3] < E[0]).sum())}/{int((E[i3] > E[0]).sum())}; each block's best e in the "
@@ -155,6 +161,7 @@ def main() -> None:
     bl.add_argument("--seeds", type=int, nargs="+", default=[666, 667])
     bl.add_argument("--pose-noise", type=float, default=0.0)
     bl.add_argument("--contact-breaking", nargs="+", default=["off", "0.001"])
+    bl.add_argument("--contact-erp", default="off", help="contact erp with a contact breaking threshold set ('off': Bullet's)")
     args = ap.parse_args()
     print("command: python benchmarks/strike_restitution.py " + " ".join(sys.argv[1:]), flush=True)
     phases(args) if args.cmd == "phases" else blocks(args)

@@ -81,16 +81,22 @@ def _frictions(model: ObjectModel, eff: dict[str, float]) -> tuple[float, float]
 class BulletSimulator:
     """Callable ``SimRequest -> (T,4,4)`` rollouts; owns one pybullet DIRECT client (call ``close``)."""
 
-    def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0, contact_breaking_m: float | None = None):
+    def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0, contact_breaking_m: float | None = None,
+                 contact_erp: float | None = None):
         import pybullet
 
         if contact_breaking_m is not None and not contact_breaking_m > 0:
             raise ValueError(f"contact_breaking_m must be > 0 m or None, not {contact_breaking_m!r}")
+        if contact_erp is not None and not 0.0 <= contact_erp <= 1.0:
+            raise ValueError(f"contact_erp must be in [0, 1] or None, not {contact_erp!r}")
         self._p = pybullet
         self._cid = pybullet.connect(pybullet.DIRECT)
         self.substep = float(sim_substep_s)
         self.margin = float(collision_margin)
         self.contact_breaking = None if contact_breaking_m is None else float(contact_breaking_m)
+        # the fraction of a contact's penetration pushed out per sub-step (None: Bullet's default); pushing out d at
+        # erp d / h adds speed to a struck object when its contact starts inside it (``contact_breaking_m``)
+        self._contact_kw = {} if contact_erp is None else {"contactERP": float(contact_erp)}
         self._hulls: dict = {}
 
     def _hull_vertices(self, model: ObjectModel) -> np.ndarray:
@@ -166,7 +172,7 @@ class BulletSimulator:
         p.setGravity(*gravity_vector(eff), physicsClientId=cid)
         p.setPhysicsEngineParameter(
             fixedTimeStep=h, numSolverIterations=50, numSubSteps=0, deterministicOverlappingPairs=1,
-            restitutionVelocityThreshold=0.05, erp=CONSTRAINT_ERP, physicsClientId=cid,
+            restitutionVelocityThreshold=0.05, erp=CONSTRAINT_ERP, physicsClientId=cid, **self._contact_kw,
         )
         mu_t, mu_r = _frictions(model, eff)
         table_z = float(req.table_height) + float(eff.get("table_offset", 0.0))
@@ -240,10 +246,11 @@ class BulletSimulator:
         return out
 
 
-def make_simulator(sim_substep_s: float = 0.002, contact_breaking_m: float | None = None) -> BulletSimulator:
-    """The built-in simulator used when the caller injects none (``ResidualConfig.sim_substep_s`` and
-    ``ResidualConfig.contact_breaking_m``)."""
-    return BulletSimulator(sim_substep_s, contact_breaking_m=contact_breaking_m)
+def make_simulator(sim_substep_s: float = 0.002, contact_breaking_m: float | None = None,
+                   contact_erp: float | None = None) -> BulletSimulator:
+    """The built-in simulator used when the caller injects none (``ResidualConfig.sim_substep_s``,
+    ``contact_breaking_m`` and ``contact_erp``)."""
+    return BulletSimulator(sim_substep_s, contact_breaking_m=contact_breaking_m, contact_erp=contact_erp)
 
 
 def service_sim_simulator(sim_cfg=None):
