@@ -78,6 +78,26 @@ def load_tosses(path: Path, max_tosses: int | None, seed: int):
     return tuple(trajs)
 
 
+def _contact_breaking(args) -> float | None:
+    """``ResidualConfig.contact_breaking_m`` from ``--contact-breaking`` (absent: the config's default; 'off': None)."""
+    from service.residuals.types import ResidualConfig
+
+    v = getattr(args, "contact_breaking", None)
+    if v is None:
+        return ResidualConfig.contact_breaking_m
+    return None if str(v).lower() == "off" else float(v)
+
+
+def _contact_erp(args) -> float | None:
+    """``ResidualConfig.contact_erp`` from ``--contact-erp`` (absent: the config's default; 'off': None)."""
+    from service.residuals.types import ResidualConfig
+
+    v = getattr(args, "contact_erp", None)
+    if v is None:
+        return ResidualConfig.contact_erp
+    return None if str(v).lower() == "off" else float(v)
+
+
 def _ratio(after: float, before: float) -> float:
     return after / before if before and np.isfinite(before) and np.isfinite(after) else float("nan")
 
@@ -129,6 +149,7 @@ def real(args) -> None:
         max_heldout_segments=args.heldout_segments, fit_maxiter=args.fit_maxiter, max_effects=args.max_effects,
         unit_statistic=args.unit_statistic, folds=args.folds,
         lookalike_check=args.lookalike_check,
+        contact_breaking_m=_contact_breaking(args), contact_erp=_contact_erp(args),
     )
     t0 = time.time()
     out = run(ResidualInputs(cube_model(), trajs, 0.0), cfg,
@@ -155,6 +176,7 @@ def synthetic(args) -> None:
     # 12 training blocks and 24 evaluations per fit, as tests/residuals/test_recover_angular_damping.py
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, max_train_segments=12, fit_maxiter=24,
                               unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check,
+                              contact_breaking_m=_contact_breaking(args), contact_erp=_contact_erp(args),
                               **json.loads(args.config))
     import resource
 
@@ -210,7 +232,8 @@ def synthetic(args) -> None:
     for seed in args.seeds[:2]:
         tr, path = push_session(base, {"friction_object_table": 0.5}, seed=seed, noise_m=3e-4, strokes=12)
         pcfg = dataclasses.replace(ResidualConfig.fast(), candidates=("friction_table", "clock_offset", "restitution"),
-                                   segment_s=0.5, seed=seed, unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check)
+                                   segment_s=0.5, seed=seed, unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check,
+        contact_breaking_m=_contact_breaking(args), contact_erp=_contact_erp(args))
         out = run(ResidualInputs(base, (tr,), 0.0, robot=(path,)), pcfg)
         c = {c.effect: c for c in out.candidates}["friction_table"]
         print(f"pushing, hidden friction_object_table 0.5, seed {seed}: accepted {list(out.accepted)}; "
@@ -242,7 +265,8 @@ def lab(args) -> None:
     cands = ("clock_offset", "friction_table", "table_tilt", "linear_damping", "restitution")
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, max_train_segments=10,
                               nuisance=() if args.exact_model else NUISANCE_LEARNED, unit_statistic=args.unit_statistic,
-                              folds=args.folds, lookalike_check=args.lookalike_check)
+                              folds=args.folds, lookalike_check=args.lookalike_check,
+        contact_breaking_m=_contact_breaking(args), contact_erp=_contact_erp(args))
     for case in args.cases:
         hidden, name, key = LAB_CASES[case]
         for seed in args.seeds:
@@ -332,7 +356,7 @@ def _true_split(ls, model, name, truth, cfg) -> str:
     masks = [effect_mask(sg, eff) for sg in segs]
     keep = [i for i, m in enumerate(masks) if m.sum() >= 3]
     segs, masks = [segs[i] for i in keep], [masks[i] for i in keep]
-    sim = make_simulator(cfg.sim_substep_s)
+    sim = make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp)
     try:
         ev = Evaluator(sim, ls.table_height, object_radius(model))
         theta = tuple(truth) if isinstance(truth, tuple) else (truth,)
@@ -377,7 +401,8 @@ def strike(args) -> None:
             cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, seed=seed,
                                       fit_maxiter=24, max_train_segments=10,
                                       nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
-                                      unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check)
+                                      unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check,
+        contact_breaking_m=_contact_breaking(args), contact_erp=_contact_erp(args))
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
             if args.true_split:
@@ -510,6 +535,12 @@ def main() -> None:
         sp.add_argument("--lookalike-check", action="store_true",
                         help="rule 9 (docs/residuals.md §4): a passing candidate must beat each look-alike effect "
                              "fitted in the same round (table friction against linear damping) on held-out blocks")
+        sp.add_argument("--contact-breaking", default=None, metavar="M",
+                        help="contact breaking threshold of the loop's simulator in m, or 'off' for Bullet's 0.02 m "
+                             "(ResidualConfig.contact_breaking_m, docs/residuals.md §6); default: the config's default")
+        sp.add_argument("--contact-erp", default=None, metavar="F",
+                        help="fraction of a contact's penetration the loop's simulator pushes out per sub-step, or 'off' "
+                             "for Bullet's default (ResidualConfig.contact_erp, docs/residuals.md §6)")
     args = ap.parse_args()
     # refused before any session is made (naming the flag), not by a traceback from the loop's config
     if args.folds < 1:

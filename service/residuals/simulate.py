@@ -47,6 +47,12 @@ G = 9.81
 CONSTRAINT_ERP = 0.2
 CONSTRAINT_LEAD_STEPS = (1.0 - CONSTRAINT_ERP) / CONSTRAINT_ERP
 FAR_ABOVE_M = 50.0  # where the robot sphere is parked for tosses without a robot (service.sim needs one)
+# Bullet's contact breaking threshold (gContactBreakingThreshold, a process-wide global, 0.02 m by default): pairs closer
+# than this get contact points before they touch. Measured (docs/residuals.md §6): when the point exists for many
+# sub-steps before a strike touches, the strike's bounce is lost — with 0.02 m and 2 ms sub-steps in 5-7 of 12 contact
+# phases (e = 0.3, 0.35-0.6 m/s; at 1 ms in all), with 1-2 mm in none. ``contact_breaking_m`` sets it for the rollouts
+# of one simulator and puts this default back after each rollout (other Bullet users in the process share the global).
+BULLET_CONTACT_BREAKING_M = 0.02
 
 
 def gravity_vector(effects: dict[str, float]) -> np.ndarray:
@@ -75,13 +81,22 @@ def _frictions(model: ObjectModel, eff: dict[str, float]) -> tuple[float, float]
 class BulletSimulator:
     """Callable ``SimRequest -> (T,4,4)`` rollouts; owns one pybullet DIRECT client (call ``close``)."""
 
-    def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0):
+    def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0, contact_breaking_m: float | None = None,
+                 contact_erp: float | None = None):
         import pybullet
 
+        if contact_breaking_m is not None and not contact_breaking_m > 0:
+            raise ValueError(f"contact_breaking_m must be > 0 m or None, not {contact_breaking_m!r}")
+        if contact_erp is not None and not 0.0 <= contact_erp <= 1.0:
+            raise ValueError(f"contact_erp must be in [0, 1] or None, not {contact_erp!r}")
         self._p = pybullet
         self._cid = pybullet.connect(pybullet.DIRECT)
         self.substep = float(sim_substep_s)
         self.margin = float(collision_margin)
+        self.contact_breaking = None if contact_breaking_m is None else float(contact_breaking_m)
+        # the fraction of a contact's penetration pushed out per sub-step (None: Bullet's default); pushing out d at
+        # erp d / h adds speed to a struck object when its contact starts inside it (``contact_breaking_m``)
+        self._contact_kw = {} if contact_erp is None else {"contactERP": float(contact_erp)}
         self._hulls: dict = {}
 
     def _hull_vertices(self, model: ObjectModel) -> np.ndarray:
@@ -126,9 +141,20 @@ class BulletSimulator:
         self.close()
 
     def __call__(self, req: SimRequest) -> np.ndarray:
-        p, cid = self._p, self._cid
-        if cid is None:
+        """(T,4,4) X_WO of the rollout at the request's times (W, m)."""
+        if self._cid is None:
             raise RuntimeError("simulator is closed")
+        if self.contact_breaking is None:
+            return self._rollout(req)
+        p = self._p
+        p.setPhysicsEngineParameter(contactBreakingThreshold=self.contact_breaking, physicsClientId=self._cid)
+        try:
+            return self._rollout(req)
+        finally:  # a process-wide global in Bullet: leave it as other users expect it
+            p.setPhysicsEngineParameter(contactBreakingThreshold=BULLET_CONTACT_BREAKING_M, physicsClientId=self._cid)
+
+    def _rollout(self, req: SimRequest) -> np.ndarray:
+        p, cid = self._p, self._cid
         eff = {**req.model.effects, **req.effects}
         model = req.model
         t = np.asarray(req.t, float)
@@ -146,7 +172,7 @@ class BulletSimulator:
         p.setGravity(*gravity_vector(eff), physicsClientId=cid)
         p.setPhysicsEngineParameter(
             fixedTimeStep=h, numSolverIterations=50, numSubSteps=0, deterministicOverlappingPairs=1,
-            restitutionVelocityThreshold=0.05, erp=CONSTRAINT_ERP, physicsClientId=cid,
+            restitutionVelocityThreshold=0.05, erp=CONSTRAINT_ERP, physicsClientId=cid, **self._contact_kw,
         )
         mu_t, mu_r = _frictions(model, eff)
         table_z = float(req.table_height) + float(eff.get("table_offset", 0.0))
@@ -220,9 +246,11 @@ class BulletSimulator:
         return out
 
 
-def make_simulator(sim_substep_s: float = 0.002) -> BulletSimulator:
-    """The built-in simulator used when the caller injects none."""
-    return BulletSimulator(sim_substep_s)
+def make_simulator(sim_substep_s: float = 0.002, contact_breaking_m: float | None = None,
+                   contact_erp: float | None = None) -> BulletSimulator:
+    """The built-in simulator used when the caller injects none (``ResidualConfig.sim_substep_s``,
+    ``contact_breaking_m`` and ``contact_erp``)."""
+    return BulletSimulator(sim_substep_s, contact_breaking_m=contact_breaking_m, contact_erp=contact_erp)
 
 
 def service_sim_simulator(sim_cfg=None):

@@ -133,6 +133,15 @@ class ResidualConfig:
     # docs/residuals.md §7)
     flight_start_model: bool = False
     sim_substep_s: float = 0.002  # max physics step of the built-in simulator
+    # contact breaking threshold of the built-in simulator, m (None: Bullet's 0.02 m): pairs closer than this get a
+    # contact point before they touch; with 0.02 m a strike's bounce was lost in 5-7 of 12 contact phases (the point
+    # made many sub-steps ahead of the touch), with 1 mm (about the gap a 0.5 m/s strike closes in one 2 ms sub-step)
+    # in none (docs/residuals.md §6)
+    contact_breaking_m: float | None = None
+    # fraction of a contact's penetration the built-in simulator pushes out per sub-step (None: Bullet's default):
+    # with contacts made at the touch (contact_breaking_m) a strike starts inside the object by up to v h, and the
+    # push-out d erp / h added up to 7 % to an e = 0 launch with Bullet's default, 4 % with 0.05 (docs/residuals.md §6)
+    contact_erp: float | None = None
     contact_tol_m: float = 0.004  # gap below which the table counts as touching (mode classifier)
     rest_speed: float = 0.03  # m/s, below this (and touching) the object is at rest
     impact_dv: float = 0.3  # m/s, a velocity jump above this in one step while touching = impact
@@ -186,6 +195,10 @@ class ResidualConfig:
         for name in ("launch_rest_speed", "launch_lead", "robot_smooth_s"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"ResidualConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        if self.contact_breaking_m is not None and not self.contact_breaking_m > 0:
+            raise ValueError(f"ResidualConfig.contact_breaking_m must be > 0 m or None, not {self.contact_breaking_m!r}")
+        if self.contact_erp is not None and not 0.0 <= self.contact_erp <= 1.0:
+            raise ValueError(f"ResidualConfig.contact_erp must be in [0, 1] or None, not {self.contact_erp!r}")
         if not (isinstance(self.folds, int) and self.folds >= 1):
             raise ValueError(f"ResidualConfig.folds must be an integer >= 1, not {self.folds!r}")
         if self.unit_statistic not in ("relative", "mean"):
