@@ -446,7 +446,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         fW, fO = _feature_corr(o, obs[a], X[a], keyframes, lost=(a != i - 1))
         feat_W = feat_O = None
         if len(fW) >= max(6, cfg.feat_min_inliers):
-            Xr, inl = _feature_motion(fW, fO, cfg, rng, X_inv(X[a]))
+            Xr, inl = _feature_motion(fW, fO, cfg, rng)
             if Xr is not None:
                 Xc = X_inv(Xr)  # fO = Xr fW -> Xr = X_OW
                 cands.append(Xc)
@@ -1194,40 +1194,18 @@ def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: li
     return np.concatenate(A), np.concatenate(B)
 
 
-def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np.random.Generator,
-                    X_OW_prev: np.ndarray | None = None) -> tuple[np.ndarray | None, np.ndarray]:
+def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np.random.Generator
+                    ) -> tuple[np.ndarray | None, np.ndarray]:
     """RANSAC rigid fit (X_OW, inlier mask) of the tracking loop's ORB correspondences fW (current point, W) ↔ fO
     (same point, O): at ``track_ransac_thr`` first when set, at ``ransac_thr`` when that finds fewer than
     ``feat_min_inliers`` (or when it is None). A keypoint whose patch lies on the silhouette or an occluder's edge
     stays put in the image while a small body turns under it; within the wide threshold of a surface that moved
-    less than it (a 3 cm egg turning 5°/frame: 2.6 mm) it joins the consensus and pulls the fit toward no motion.
-    With ``track_ransac_still`` set and X_OW_prev (4,4) the previous tracked pose's inverse, the wide consensus
-    comes first and is kept when it moves its keypoints less than that (``_consensus_still``)."""
-    if cfg.track_ransac_thr is None:
-        return ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
-    wide = None
-    if cfg.track_ransac_still is not None and X_OW_prev is not None:
-        wide = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
-        if wide[0] is not None and _consensus_still(fW[wide[1]], wide[0], X_OW_prev, cfg.track_ransac_still):
-            return wide
-    Xr, inl = ransac_rigid(fW, fO, cfg.track_ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
-    if Xr is not None:
-        return Xr, inl
-    return wide if wide is not None else ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng,
-                                                      min_inliers=cfg.feat_min_inliers)
-
-
-def _consensus_still(P_W: np.ndarray, X_OW: np.ndarray, X_OW_prev: np.ndarray, still: float) -> bool:
-    """Whether the fit X_OW (4,4) moves the keypoints P_W (N,3, W; its inliers) by less than ``still`` (m, median
-    over them) from where the previous pose X_OW_prev (4,4) puts them, i.e. whether the body is at rest to within
-    the keypoints' noise. A tight consensus can tell a keypoint that stays put in the image (silhouette, occluder
-    edge) from one on the surface only when the surface moved more than the readings' noise; at rest the two
-    coincide and the tight threshold only discards true matches (a prism at rest: the difference of two readings
-    of the same keypoint is 4 mm median, so 4 mm keeps half of them, 1 cm three quarters)."""
-    if len(P_W) == 0:
-        return False
-    d = P_W @ (X_OW[:3, :3] - X_OW_prev[:3, :3]).T + (X_OW[:3, 3] - X_OW_prev[:3, 3])
-    return bool(np.median(np.linalg.norm(d, axis=1)) < still)
+    less than it (a 3 cm egg turning 5°/frame: 2.6 mm) it joins the consensus and pulls the fit toward no motion."""
+    if cfg.track_ransac_thr is not None:
+        Xr, inl = ransac_rigid(fW, fO, cfg.track_ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
+        if Xr is not None:
+            return Xr, inl
+    return ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
 
 
 def _kf_features(kp_W: np.ndarray, desc: np.ndarray | None, X_WO: np.ndarray, keyframes: list[Keyframe],

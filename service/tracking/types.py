@@ -92,12 +92,6 @@ class TrackingConfig:
     # Off: 0.004 gained on 3 of 4 development eggs (27-37 -> 18-27 deg median) and lost on the evaluation egg 707
     # (6.91 -> 9.68 deg), 704 and 709 (docs/tracking.md, "The loop's lag in a fast roll")
     track_ransac_thr: float | None = None
-    # with track_ransac_thr: the wide consensus (ransac_thr) first, kept when its fit moves its keypoints less than
-    # track_ransac_still (m, median) from the previous tracked pose (tracker._consensus_still): at rest a keypoint
-    # that stays put in the image is where the surface is, and the tight threshold only drops true matches (development
-    # prism pivots: the difference of two readings of a keypoint is 4 mm median). None: off (the tight consensus in
-    # every frame). docs/tracking.md, "Pivots with the tight feature consensus"
-    track_ransac_still: float | None = None
     min_inlier_frac: float = 0.35  # below: lost track
     max_rmse: float = 0.006  # above: lost track
     max_speed: float = 1.5  # a pose farther than this (m/s) or
@@ -468,7 +462,7 @@ class TrackingConfig:
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
 
-        for name in ("kf_still_speed", "kf_still_tilt_deg", "track_ransac_thr", "track_ransac_still"):
+        for name in ("kf_still_speed", "kf_still_tilt_deg", "track_ransac_thr"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
         if self.spin_profile not in ("off", "mixed", "always"):

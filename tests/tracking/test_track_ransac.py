@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from service.tracking.geometry import ransac_rigid
-from service.tracking.tracker import _consensus_still, _feature_motion
+from service.tracking.tracker import _feature_motion
 from service.tracking.types import TrackingConfig
 from service.transforms import X_inv, rotation_angle, so3_exp
 
@@ -65,58 +65,3 @@ def test_off_is_the_wide_ransac_and_fallback_when_too_few_inliers():
 def test_config_rejects_a_negative_threshold():
     with pytest.raises(ValueError):
         TrackingConfig(track_ransac_thr=-0.001)
-
-
-def _resting_cap(seed: int, noise: float = 0.0025):
-    """Correspondences of a cap at rest (O = W): every keypoint is where it was, read with ``noise`` (m per axis):
-    the distance between the two readings is then about 4 mm median, as for the keypoints of the development prism
-    pivots, and a 4 mm consensus cuts away half of the true matches."""
-    rng = np.random.default_rng(seed)
-    fW, fO, _ = _turning_cap(seed, deg=0.0, static_frac=0.0, noise=0.0)
-    return fW + rng.normal(scale=noise, size=fW.shape), fO
-
-
-def test_consensus_still_measures_the_motion_since_the_previous_pose():
-    P = np.random.default_rng(0).normal(scale=0.03, size=(50, 3))
-    X_prev = np.eye(4)
-    X = np.eye(4)
-    X[:3, 3] = [0.001, 0.0, 0.0]
-    assert _consensus_still(P, X, X_prev, 0.002)
-    X[:3, :3] = so3_exp(np.radians(10.0) * np.array([1.0, 0.0, 0.0]))  # 3 cm points turning 10°: 4-5 mm
-    assert not _consensus_still(P, X, X_prev, 0.002)
-    assert not _consensus_still(P[:0], X, X_prev, 0.002)
-
-
-def test_still_gate_keeps_the_wide_consensus_at_rest_and_the_tight_one_in_motion():
-    cfg = TrackingConfig(track_ransac_thr=0.004, track_ransac_still=0.002)
-    n_tight, n_gated, e_tight, e_gated = [], [], [], []
-    for seed in range(10):
-        fW, fO = _resting_cap(seed)
-        Xt, it = _feature_motion(fW, fO, TrackingConfig(track_ransac_thr=0.004), np.random.default_rng(0))
-        Xg, ig = _feature_motion(fW, fO, cfg, np.random.default_rng(0), np.eye(4))
-        Xw, iw = ransac_rigid(fW, fO, cfg.ransac_thr, rng=np.random.default_rng(0), min_inliers=cfg.feat_min_inliers)
-        assert np.array_equal(Xg, Xw) and np.array_equal(ig, iw)  # at rest: the wide consensus
-        n_tight.append(it.sum())
-        n_gated.append(ig.sum())
-        e_tight.append(np.degrees(rotation_angle(Xt[:3, :3])))
-        e_gated.append(np.degrees(rotation_angle(Xg[:3, :3])))
-    assert np.median(n_gated) > 1.2 * np.median(n_tight)
-    assert np.median(e_gated) < np.median(e_tight)
-    # a turning body (4-5 mm per frame): the tight consensus as without the gate, the outline keypoints dropped
-    kept, lag = [], []
-    for seed in range(10):
-        fW, fO, static = _turning_cap(seed)
-        Xg, ig = _feature_motion(fW, fO, cfg, np.random.default_rng(0), np.eye(4))
-        kept.append(ig[static].mean())
-        lag.append(10.0 - np.degrees(rotation_angle(X_inv(Xg)[:3, :3])))
-    assert np.median(kept) < 0.3 and np.median(lag) < 0.6
-
-
-def test_still_gate_off_is_the_tight_consensus_of_before():
-    fW, fO, _ = _turning_cap(2)
-    cfg = TrackingConfig(track_ransac_thr=0.004)
-    X0, i0 = _feature_motion(fW, fO, cfg, np.random.default_rng(0))
-    X1, i1 = _feature_motion(fW, fO, cfg, np.random.default_rng(0), np.eye(4))
-    assert np.array_equal(X0, X1) and np.array_equal(i0, i1)
-    with pytest.raises(ValueError):
-        TrackingConfig(track_ransac_still=-0.001)
