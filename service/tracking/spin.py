@@ -152,8 +152,9 @@ def find_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float, profile: str
     """(is_revolution, λ̂, a, c) of the model Q, N (M,3): ``revolution_axis``; with ``profile`` "mixed" a model that
     fails the separation test (two nearly equal weak rotations: an egg) or whose weakest direction is a slide with
     a weak rotation next gets its axis refitted to the radius profile (``profile_axis``, from that eigen-axis),
-    kept when the profile fits within ``max_rms`` (m); "multi": as "mixed", the refit started from every rotation
-    eigen-axis as well (``profile_starts``) and the best fit kept; "always": every axis is refitted so; "off": the
+    kept when the profile fits within ``max_rms`` (m); "multi": as "mixed" (the same models kept), the axis of a
+    kept model then the best of the refits started from every rotation eigen-axis as well (``profile_starts``);
+    "always": every axis is refitted so; "off": the
     eigen-axis alone."""
     ok, lam, a, c = revolution_axis(Q, N, tau, sep)
     if ok and profile != "always":
@@ -167,13 +168,13 @@ def find_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float, profile: str
         if not ok:
             return ok, lam, a, c
     a2, c2, rms = profile_axis(Q, a, c)
-    if profile == "multi":
+    if rms > max_rms:
+        return False, lam, np.zeros(3), np.zeros(3)
+    if profile == "multi":  # which models are bodies of revolution is decided above, as with "mixed"
         for a0, c0 in profile_starts(Q, N):
             a3, c3, rms3 = profile_axis(Q, a0, c0)
             if rms3 < rms:
                 a2, c2, rms = a3, c3, rms3
-    if rms > max_rms:
-        return False, lam, np.zeros(3), np.zeros(3)
     return True, lam, a2, c2
 
 
