@@ -56,7 +56,7 @@ def test_profile_starts():
 
 
 def test_config():
-    assert TrackingConfig().spin_profile == "mixed"  # off by default (docs/tracking.md)
-    TrackingConfig(spin_profile="multi")
+    assert TrackingConfig().spin_profile == "multi"  # on by default (docs/tracking.md)
+    TrackingConfig(spin_profile="mixed")
     with pytest.raises(ValueError):
         TrackingConfig(spin_profile="best")
