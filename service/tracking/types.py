@@ -183,8 +183,11 @@ class TrackingConfig:
     sdf_carve_value: float = 0.005  # S (m) given to those voxels
     sdf_drop_flying: bool = False  # no object rays at depth jumps inside the mask (flying pixels; edge_jump test)
     # spin closure: axis of a model whose weak rotations mix (an egg) refitted to its radius profile ("mixed"),
-    # every axis so ("always") or none ("off"); a correction above spin_max_deg in any frame is not applied (0: no cap)
-    spin_profile: str = "mixed"
+    # every axis so ("always") or none ("off"); "multi": as "mixed", the refit started from every rotation eigen-axis
+    # too (spin.profile_starts), the best profile fit kept (egg 707 6.91 -> 6.82 deg median, 30.39 -> 28.44 worst; the
+    # other evaluation sessions identical; development egg 1002 29.49 -> 13.09, docs/tracking.md); a correction above
+    # spin_max_deg in any frame is not applied (0: no cap)
+    spin_profile: str = "multi"
     spin_max_deg: float = 120.0
     # gauge of the body frame (service.tracking.gauge): X̂_0 = robust mean of frame 0's registration to the final
     # model and of the final poses of up to gauge_frames frames at rest — before the end effector comes within
@@ -465,8 +468,9 @@ class TrackingConfig:
         for name in ("kf_still_speed", "kf_still_tilt_deg", "track_ransac_thr"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
-        if self.spin_profile not in ("off", "mixed", "always"):
-            raise ValueError(f"TrackingConfig.spin_profile must be 'off', 'mixed' or 'always', not {self.spin_profile!r}")
+        if self.spin_profile not in ("off", "mixed", "multi", "always"):
+            raise ValueError("TrackingConfig.spin_profile must be 'off', 'mixed', 'multi' or 'always', "
+                             f"not {self.spin_profile!r}")
         if self.spin_solver not in ("chain", "graph", "mixed"):
             raise ValueError(f"TrackingConfig.spin_solver must be 'chain', 'graph' or 'mixed', not {self.spin_solver!r}")
         if not self.spin_mixed_rate_deg >= 0:
