@@ -356,7 +356,7 @@ def _true_split(ls, model, name, truth, cfg) -> str:
     masks = [effect_mask(sg, eff) for sg in segs]
     keep = [i for i, m in enumerate(masks) if m.sum() >= 3]
     segs, masks = [segs[i] for i in keep], [masks[i] for i in keep]
-    sim = make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp)
+    sim = make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp, cfg.sphere_drive)
     try:
         ev = Evaluator(sim, ls.table_height, object_radius(model))
         theta = tuple(truth) if isinstance(truth, tuple) else (truth,)
@@ -402,7 +402,8 @@ def strike(args) -> None:
                                       fit_maxiter=24, max_train_segments=10,
                                       nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
                                       unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check,
-        contact_breaking_m=_contact_breaking(args), contact_erp=_contact_erp(args))
+        contact_breaking_m=_contact_breaking(args), contact_erp=_contact_erp(args),
+                                      sphere_drive=args.sphere_drive)
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
             if args.true_split:
@@ -521,6 +522,9 @@ def main() -> None:
     st.add_argument("--true-split", action="store_true",
                     help="no loop: the block errors of the declared model and of the true effect value, on the effect's "
                          "frames of every block where it acts (what the data can show)")
+    st.add_argument("--sphere-drive", choices=("lead", "inverse"), default="lead",
+                    help="how the rollouts drag the sphere along the measured path (ResidualConfig.sphere_drive, "
+                         "docs/residuals.md §6): lead (the default) or inverse (the constraint's update inverted)")
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
     for sp in (r, s, lb, st):

@@ -35,7 +35,7 @@ from __future__ import annotations
 import numpy as np
 
 from service.model import ObjectModel
-from service.residuals.types import SimRequest
+from service.residuals.types import SPHERE_DRIVES, SimRequest
 from service.transforms import make_X, mat_to_quat, quat_to_mat, so3_exp
 
 G = 9.81
@@ -46,6 +46,11 @@ G = 9.81
 # sphere press into a pushed object: a hidden clock offset of 0.1 s on a lab push was then fitted 0.043 s.)
 CONSTRAINT_ERP = 0.2
 CONSTRAINT_LEAD_STEPS = (1.0 - CONSTRAINT_ERP) / CONSTRAINT_ERP
+# How the constraint's target is set from the recorded path (``BulletSimulator(sphere_drive=...)``): "lead" reads the
+# path (1 − erp) / erp sub-steps ahead (exact at a steady velocity only: at the brake of a strike the sphere rounds
+# the corner of its speed and hands the object a launch 1.5-2.5 % too slow); "inverse" inverts the constraint's
+# update (``sphere_targets``: the sphere lands on its path at every sub-step in free motion, whatever its velocity
+# does, and a contact still pushes it off as softly as before).
 FAR_ABOVE_M = 50.0  # where the robot sphere is parked for tosses without a robot (service.sim needs one)
 # Bullet's contact breaking threshold (gContactBreakingThreshold, a process-wide global, 0.02 m by default): pairs closer
 # than this get contact points before they touch. Measured (docs/residuals.md §6): when the point exists for many
@@ -53,6 +58,21 @@ FAR_ABOVE_M = 50.0  # where the robot sphere is parked for tosses without a robo
 # phases (e = 0.3, 0.35-0.6 m/s; at 1 ms in all), with 1-2 mm in none. ``contact_breaking_m`` sets it for the rollouts
 # of one simulator and puts this default back after each rollout (other Bullet users in the process share the global).
 BULLET_CONTACT_BREAKING_M = 0.02
+
+
+def sphere_targets(path: np.ndarray, erp: float = CONSTRAINT_ERP) -> np.ndarray:
+    """(J,3) constraint targets u_j that put a freely moving sphere on its path p_j (J,3, m, frame W, one row per
+    sub-step, p_0 the start) at every sub-step.
+
+    The fixed constraint closes the fraction erp of its error per sub-step, x_j = x_{j−1} + erp (u_j − x_{j−1}), so
+    u_j = p_{j−1} + (p_j − p_{j−1}) / erp gives x_j = p_j whenever x_{j−1} = p_{j−1} (exact for any path, where reading
+    the path (1 − erp) / erp sub-steps ahead is exact at a constant velocity only). A contact that pushes the sphere
+    off its path is still corrected by the fraction erp per sub-step: x_j − p_j = (1 − erp)(x_{j−1} − p_{j−1}).
+    """
+    p = np.asarray(path, float)
+    u = p.copy()
+    u[1:] = p[:-1] + (p[1:] - p[:-1]) / erp
+    return u
 
 
 def gravity_vector(effects: dict[str, float]) -> np.ndarray:
@@ -82,13 +102,15 @@ class BulletSimulator:
     """Callable ``SimRequest -> (T,4,4)`` rollouts; owns one pybullet DIRECT client (call ``close``)."""
 
     def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0, contact_breaking_m: float | None = None,
-                 contact_erp: float | None = None):
+                 contact_erp: float | None = None, sphere_drive: str = "lead"):
         import pybullet
 
         if contact_breaking_m is not None and not contact_breaking_m > 0:
             raise ValueError(f"contact_breaking_m must be > 0 m or None, not {contact_breaking_m!r}")
         if contact_erp is not None and not 0.0 <= contact_erp <= 1.0:
             raise ValueError(f"contact_erp must be in [0, 1] or None, not {contact_erp!r}")
+        if sphere_drive not in SPHERE_DRIVES:
+            raise ValueError(f"sphere_drive must be one of {SPHERE_DRIVES}, not {sphere_drive!r}")
         self._p = pybullet
         self._cid = pybullet.connect(pybullet.DIRECT)
         self.substep = float(sim_substep_s)
@@ -97,6 +119,7 @@ class BulletSimulator:
         # the fraction of a contact's penetration pushed out per sub-step (None: Bullet's default); pushing out d at
         # erp d / h adds speed to a struck object when its contact starts inside it (``contact_breaking_m``)
         self._contact_kw = {} if contact_erp is None else {"contactERP": float(contact_erp)}
+        self.sphere_drive = sphere_drive
         self._hulls: dict = {}
 
     def _hull_vertices(self, model: ObjectModel) -> np.ndarray:
@@ -210,9 +233,13 @@ class BulletSimulator:
             rp = np.asarray(rb.p_WE, float)
             # sphere targets at every sub-step, on the data clock shifted by the clock offset
             tt = np.concatenate([t[k] + (t[k + 1] - t[k]) * (np.arange(1, n_sub[k] + 1) / n_sub[k]) for k in range(T - 1)])
-            # + the constraint's steady lag (1 − erp) / erp sub-steps: the sphere is on its path in free motion
-            tt = np.concatenate([[t[0]], tt]) + float(eff.get("clock_offset", 0.0)) + CONSTRAINT_LEAD_STEPS * h
-            ee_path = np.stack([np.interp(tt, rt, rp[:, i]) for i in range(3)], 1)
+            tt = np.concatenate([[t[0]], tt]) + float(eff.get("clock_offset", 0.0))
+            if self.sphere_drive == "inverse":
+                ee_path = sphere_targets(np.stack([np.interp(tt, rt, rp[:, i]) for i in range(3)], 1))
+            else:
+                # + the constraint's steady lag (1 − erp) / erp sub-steps: the sphere is on its path in free motion
+                tt = tt + CONSTRAINT_LEAD_STEPS * h
+                ee_path = np.stack([np.interp(tt, rt, rp[:, i]) for i in range(3)], 1)
             sshape = p.createCollisionShape(p.GEOM_SPHERE, radius=float(rb.radius), physicsClientId=cid)
             sphere = p.createMultiBody(10.0, sshape, basePosition=ee_path[0].tolist(), physicsClientId=cid)
             p.changeDynamics(sphere, -1, lateralFriction=mu_r, restitution=1.0, linearDamping=0.0,
@@ -247,10 +274,11 @@ class BulletSimulator:
 
 
 def make_simulator(sim_substep_s: float = 0.002, contact_breaking_m: float | None = None,
-                   contact_erp: float | None = None) -> BulletSimulator:
+                   contact_erp: float | None = None, sphere_drive: str = "lead") -> BulletSimulator:
     """The built-in simulator used when the caller injects none (``ResidualConfig.sim_substep_s``,
-    ``contact_breaking_m`` and ``contact_erp``)."""
-    return BulletSimulator(sim_substep_s, contact_breaking_m=contact_breaking_m, contact_erp=contact_erp)
+    ``contact_breaking_m``, ``contact_erp`` and ``sphere_drive``)."""
+    return BulletSimulator(sim_substep_s, contact_breaking_m=contact_breaking_m, contact_erp=contact_erp,
+                           sphere_drive=sphere_drive)
 
 
 def service_sim_simulator(sim_cfg=None):

@@ -84,6 +84,11 @@ class ResidualInputs:
     simulate: Callable[[SimRequest], np.ndarray] | None = None
 
 
+# how the built-in simulator drags the robot sphere along its measured path (``ResidualConfig.sphere_drive``,
+# ``simulate.BulletSimulator``)
+SPHERE_DRIVES: tuple[str, ...] = ("lead", "inverse")
+
+
 @dataclass(frozen=True)
 class ResidualConfig:
     """Settings of the residual loop. ``fast()`` is the reduced preset used by tests.
@@ -169,6 +174,12 @@ class ResidualConfig:
     launch_lead: int = 2  # frames of rest at the start of a launch block
     launch_max_s: float = 1.0  # longest launch block, s
     robot_smooth_s: float = 0.04  # Savitzky-Golay window on the measured sphere path before the rollouts, s (0: off)
+    # how the built-in simulator drags the sphere along the measured path (simulate.SPHERE_DRIVES; docs/residuals.md
+    # §6 and §7, "Linear damping fitted low on strikes"): "lead" reads the path the constraint's steady lag ahead (exact
+    # at a constant velocity; at a strike's brake the sphere rounds its speed peak and launches the object 1.5-2.5 %
+    # too slow, which a damping fit absorbs by 15-30 %); "inverse" inverts the constraint's update, so the free
+    # sphere is on its path at every sub-step. Default "lead" (every output as before)
+    sphere_drive: str = "lead"
     # K-fold cross-fitting of the held-out test (docs/residuals.md §4): 1 = one seeded split (half the units held
     # out); K >= 2 = every unit (toss, or block of one session) held out exactly once, the corrections and the
     # candidates fitted on the complement of each fold, rules 1-7 applied to the union of the folds' held-out errors, then
@@ -183,6 +194,8 @@ class ResidualConfig:
     lookalike_check: bool = False
 
     def __post_init__(self) -> None:
+        if self.sphere_drive not in SPHERE_DRIVES:
+            raise ValueError(f"ResidualConfig.sphere_drive must be one of {SPHERE_DRIVES}, not {self.sphere_drive!r}")
         if not isinstance(self.lookalike_check, bool):
             raise ValueError(f"ResidualConfig.lookalike_check must be a bool, not {self.lookalike_check!r}")
         for name in ("max_base_error_rel_learned", "launch_speed", "launch_max_s"):

@@ -1,0 +1,165 @@
+"""Diagnosis of the strike replay (docs/residuals.md §7, "Linear damping fitted low on strikes"): how fast the
+rollouts launch a struck object against the lab, and where the damping's training loss has its minimum.
+
+Ground truth is read here only (the hidden damping, noise-free poses and robot path); nothing of it reaches the
+loop. Baking-box strike sessions of the synthetic lab (30 s, 30 Hz, the strike benchmark's settings), catalogue
+model, declared friction 0.15 (the true one unless ``--mu``).
+
+    python benchmarks/residuals_launch.py launch --seed 651 [--b 2.0] [--mu 0.15] [--noise] [--drive lead|inverse]
+        [--substep 0.002] [--smooth 0.0]
+        per launch block: the observed horizontal travel and peak frame speed against the rollout of the true model
+        (noise-free poses and robot path, no smoothing unless --noise / --smooth)
+    python benchmarks/residuals_launch.py loss --seed 651 [--b 2.0] [--pose-noise 5e-4] [--no-robot-noise]
+        [--drive lead|inverse] [--smooth S] [--grid 0 1.4 1.7 2.0 2.3 2.6]
+        the damping's training loss (the loop's blocks, start states and error) at each b of the grid, on the frames
+        it is fitted on and split by frame kind (sliding, robot contact, rest, all, the last frame of each launch)
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+
+def _session(seed: int, b: float, mu: float, pose_noise: float, robot_noise: bool):
+    from service.synth.types import HiddenEffects, SynthSpec
+    from tests.residuals.synthlab import lab_session
+
+    hidden = {"linear_damping": b} if b > 0 else {}
+    if mu != 0.15:
+        hidden["friction_object_table"] = mu
+    spec = SynthSpec(object="baking_box", interaction="strike", seed=seed, preset="tiny", n_frames=900,
+                     friction_object_table=0.15, effects=HiddenEffects(**hidden), noise=robot_noise)
+    return lab_session(spec, pose_noise_m=pose_noise, pose_noise_rad=10.0 * pose_noise)
+
+
+def _blocks(ls, model, cfg):
+    from service.residuals.loop import launches, make_segments, smooth_robot
+    from service.residuals.modes import classify
+    from service.residuals.types import ResidualInputs
+
+    robot = smooth_robot(ls.robot, cfg)
+    tr = ls.trajectory
+    mode = classify(model, tr, ls.table_height, robot, cfg)
+    segs = make_segments(ResidualInputs(model, (tr,), ls.table_height, robot=(robot,)), [mode], cfg)
+    starts = {max(a - cfg.launch_lead, 0) for a, _ in launches(np.asarray(tr.t), np.asarray(tr.X_WO),
+                                                                np.ones(len(tr.t), bool), cfg)}
+    return segs, starts, mode
+
+
+def launch(args) -> None:
+    from service.residuals.effects import apply_effects
+    from service.residuals.simulate import BulletSimulator
+    from service.residuals.types import ResidualConfig, SimRequest
+    from service.session.types import Friction
+    from tests.residuals.synthlab import perturbed_model
+
+    ls = _session(args.seed, args.b, args.mu, 5e-4 if args.noise else 0.0, args.noise)
+    cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3, robot_smooth_s=0.04 if args.noise else args.smooth,
+                              sim_substep_s=args.substep)
+    model = perturbed_model(ls)
+    model = dataclasses.replace(model, friction=Friction(args.mu, model.friction.object_robot))
+    segs, starts, _ = _blocks(ls, model, cfg)
+    m1, e1 = apply_effects(model, {"linear_damping": (args.b,)})
+    travel, peak = [], []
+    with BulletSimulator(args.substep, sphere_drive=args.drive) as sim:
+        for s in (s for s in segs if s.start in starts):
+            P = s.X_obs[:, :2, 3]
+            X = sim(SimRequest(m1, s.X0, s.v0, s.w0, s.t, ls.table_height, s.robot, e1))
+            Q = X[:, :2, 3]
+            u, us = (np.linalg.norm(np.diff(A, axis=0), axis=1) / np.diff(s.t) for A in (P, Q))
+            travel.append(np.linalg.norm(Q[-1] - Q[0]) / np.linalg.norm(P[-1] - P[0]))
+            peak.append(us.max() / u.max())
+            print(f"  launch block at frame {s.start:4d}: observed travel {np.linalg.norm(P[-1] - P[0]) * 1e3:5.1f} mm, "
+                  f"peak frame speed {u.max():.3f} m/s; rollout travel x {travel[-1]:.3f}, peak x {peak[-1]:.3f}")
+    print(f"seed {args.seed}, b {args.b} /s, mu {args.mu}, drive {args.drive}, sub-step {args.substep * 1e3:.2f} ms, "
+          f"{'noisy poses and robot path (smoothed 0.04 s)' if args.noise else 'noise-free'}: {len(travel)} launches, "
+          f"rollout / observed travel median {np.median(travel):.3f} (mean {np.mean(travel):.3f}), peak speed median "
+          f"{np.median(peak):.3f}")
+
+
+def loss(args) -> None:
+    from service.residuals.effects import REGISTRY, apply_effects
+    from service.residuals.loop import Evaluator, effect_mask
+    from service.residuals.modes import object_radius
+    from service.residuals.simulate import make_simulator
+    from service.residuals.types import MODES, ResidualConfig
+    from tests.residuals.synthlab import perturbed_model
+
+    ls = _session(args.seed, args.b, 0.15, args.pose_noise, not args.no_robot_noise)
+    cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3, seed=args.seed, fit_maxiter=24, max_train_segments=10)
+    if args.smooth is not None:
+        cfg = dataclasses.replace(cfg, robot_smooth_s=args.smooth)
+    model = perturbed_model(ls)
+    segs, starts, _ = _blocks(ls, model, cfg)
+    eff = REGISTRY["linear_damping"]
+    acts = [(s, effect_mask(s, eff)) for s in segs]
+    acts = [(s, m) for s, m in acts if m.sum() >= 3]
+    sim = make_simulator(cfg.sim_substep_s, sphere_drive=args.drive)
+    try:
+        ev = Evaluator(sim, ls.table_height, object_radius(model))
+        res = {}
+        for b in args.grid:
+            m1, e1 = apply_effects(model, {"linear_damping": (b,)})
+            res[b] = ev.frame_split(m1, e1, [s for s, _ in acts])
+    finally:
+        sim.close()
+    print(f"seed {args.seed}, hidden b {args.b} /s, drive {args.drive}, pose noise {args.pose_noise * 1e3:.1f} mm, robot "
+          f"noise {'off' if args.no_robot_noise else 'on'}: {len(acts)} blocks where the damping acts "
+          f"({sum(s.start in starts for s, _ in acts)} launch blocks); mean block error (mm) at b =",
+          " ".join(f"{b:.2f}" for b in args.grid))
+    S, RC, R = (MODES.index(x) for x in ("sliding", "robot_contact", "rest"))
+    kinds = {
+        "its frames (the fit's loss)": lambda s, m: m,
+        "sliding frames": lambda s, m: s.mode == S,
+        "robot-contact frames": lambda s, m: s.mode == RC,
+        "rest frames": lambda s, m: s.mode == R,
+        "all frames": lambda s, m: np.ones(len(m), bool),
+        "last frame of each launch block": lambda s, m: (np.arange(len(m)) == len(m) - 1) & (s.start in starts),
+    }
+    for name, sel in kinds.items():
+        rows = {"scalar": [], "position": []}
+        for b in args.grid:
+            sc, po = [], []
+            for (s, m), e in zip(acts, res[b]):
+                f = sel(s, m) & np.isfinite(e[:, 0])
+                if f.any():
+                    po.append(e[f, 0].mean())
+                    sc.append((e[f, 0] + e[f, 1]).mean())
+            rows["scalar"].append(np.mean(sc) * 1e3 if sc else np.nan)
+            rows["position"].append(np.mean(po) * 1e3 if po else np.nan)
+        for part, v in rows.items():
+            best = args.grid[int(np.nanargmin(v))] if np.isfinite(v).any() else float("nan")
+            print(f"  {name:32s} {part:8s} " + " ".join(f"{x:6.2f}" for x in v) + f"   minimum at b = {best}")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    la = sub.add_parser("launch")
+    la.add_argument("--noise", action="store_true", help="the benchmark's pose noise and the lab's robot sensor noise")
+    la.add_argument("--mu", type=float, default=0.15)
+    la.add_argument("--substep", type=float, default=0.002)
+    la.add_argument("--smooth", type=float, default=0.0)
+    lo = sub.add_parser("loss")
+    lo.add_argument("--pose-noise", type=float, default=5e-4)
+    lo.add_argument("--no-robot-noise", action="store_true")
+    lo.add_argument("--smooth", type=float, default=None)
+    lo.add_argument("--grid", type=float, nargs="+", default=[0.0, 1.4, 1.7, 2.0, 2.3, 2.6])
+    for p in (la, lo):
+        p.add_argument("--seed", type=int, required=True)
+        p.add_argument("--b", type=float, default=2.0, help="hidden linear damping, 1/s (0: none)")
+        p.add_argument("--drive", choices=("lead", "inverse"), default="lead")
+    args = ap.parse_args()
+    print("command:", " ".join(["python", *sys.argv]))
+    {"launch": launch, "loss": loss}[args.cmd](args)
+
+
+if __name__ == "__main__":
+    main()
