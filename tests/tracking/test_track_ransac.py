@@ -65,3 +65,44 @@ def test_off_is_the_wide_ransac_and_fallback_when_too_few_inliers():
 def test_config_rejects_a_negative_threshold():
     with pytest.raises(ValueError):
         TrackingConfig(track_ransac_thr=-0.001)
+
+
+def _gated(fW, fO, cfg):
+    return _feature_motion(fW, fO, cfg, np.random.default_rng(0), np.eye(4), np.random.default_rng(1))
+
+
+def test_gate_keeps_the_tight_fit_where_it_separates_a_static_cluster():
+    gate = TrackingConfig(track_ransac_thr=0.004, track_ransac_gate=True)
+    lag_wide, lag_gate, kept = [], [], []
+    for seed in range(10):
+        fW, fO, static = _turning_cap(seed)
+        a, _ = _turn(fW, fO, TrackingConfig())
+        Xg, inl = _gated(fW, fO, gate)
+        lag_wide.append(10.0 - a)
+        lag_gate.append(10.0 - float(np.degrees(rotation_angle(X_inv(Xg)[:3, :3]))))
+        kept.append(inl[static].mean())
+    assert np.median(kept) < 0.3  # the tight consensus was taken: most outline keypoints left out
+    assert np.median(lag_gate) < 0.6 and np.median(lag_gate) < 0.5 * np.median(lag_wide)
+
+
+@pytest.mark.parametrize("deg,static_frac", [(2.0, 0.2), (10.0, 0.0)])
+def test_gate_keeps_the_wide_fit_bit_for_bit_without_two_motions(deg, static_frac):
+    # 2°: the surface moves under 1 mm, every match fits the previous pose as well; 10° without static keypoints:
+    # nothing fits the previous pose. Either way the 1 cm fit from the main random stream, as without the option.
+    gate = TrackingConfig(track_ransac_thr=0.004, track_ransac_gate=True)
+    for seed in range(5):
+        fW, fO, _ = _turning_cap(seed, deg=deg, static_frac=static_frac)
+        Xg, ig = _gated(fW, fO, gate)
+        Xw, iw = ransac_rigid(fW, fO, gate.ransac_thr, rng=np.random.default_rng(0), min_inliers=gate.feat_min_inliers)
+        assert np.array_equal(Xg, Xw) and np.array_equal(ig, iw)
+
+
+def test_gate_needs_the_previous_pose_and_a_positive_count():
+    fW, fO, _ = _turning_cap(0)
+    gate = TrackingConfig(track_ransac_thr=0.004, track_ransac_gate=True)
+    # without X_prev the plain option runs (tight first), as the function did before the gate
+    X0, _ = _feature_motion(fW, fO, gate, np.random.default_rng(0))
+    X1, _ = _feature_motion(fW, fO, TrackingConfig(track_ransac_thr=0.004), np.random.default_rng(0))
+    assert np.array_equal(X0, X1)
+    with pytest.raises(ValueError):
+        TrackingConfig(track_gate_min=0)
