@@ -1210,7 +1210,7 @@ def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np
         if Xl is None:
             return Xl, il
         Xt, it = ransac_rigid(fW, fO, cfg.track_ransac_thr, rng=trng, min_inliers=cfg.feat_min_inliers)
-        if Xt is not None and _separates(fW, fO, il, it, X_prev, cfg.track_ransac_thr) >= cfg.track_gate_min:
+        if Xt is not None and _separates(fW, fO, il, it, X_prev, cfg.track_ransac_thr, Xt) >= cfg.track_gate_min:
             return Xt, it
         return Xl, il
     if cfg.track_ransac_thr is not None:
@@ -1221,13 +1221,18 @@ def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np
 
 
 def _separates(fW: np.ndarray, fO: np.ndarray, loose: np.ndarray, tight: np.ndarray, X_prev: np.ndarray,
-               thr: float) -> int:
-    """How many matches the tight consensus separates from the loose one as a second, static motion: inliers of
-    the loose fit (mask ``loose``), outliers of the tight fit (mask ``tight``), that lie within ``thr`` (m) of where
-    the previous pose X_prev (X_WO) puts them, i.e. whose current point fW (W) is where their point fO (O) was.
-    A body that moved less than ``thr`` has no such match (its tight fit is near the previous pose too)."""
+               thr: float, X_tight: np.ndarray) -> int:
+    """How many matches the tight consensus (fit X_tight, X_OW; inlier mask ``tight``) separates from the loose one
+    (mask ``loose``) as a second, static motion: 0 when the tight fit moves its own inliers (median) less than ``thr``
+    (m) from where the previous pose X_prev (X_WO) puts them (two motions closer than the threshold cannot be told
+    apart: a body at rest or moving slowly), else the loose inliers that are outliers of the tight fit and lie within
+    ``thr`` of where X_prev puts them, i.e. whose current point fW (W) is where their point fO (O) was."""
     X_OW = X_inv(X_prev)
-    still = np.linalg.norm(fW @ X_OW[:3, :3].T + X_OW[:3, 3] - fO, axis=1) < thr
+    at_prev = fW @ X_OW[:3, :3].T + X_OW[:3, 3]  # where each match's point would be in O had the body not moved
+    moved = np.linalg.norm(fW[tight] @ X_tight[:3, :3].T + X_tight[:3, 3] - at_prev[tight], axis=1)
+    if not np.median(moved) >= thr:
+        return 0
+    still = np.linalg.norm(at_prev - fO, axis=1) < thr
     return int(np.sum(loose & still & ~tight))
 
 

@@ -94,9 +94,10 @@ class TrackingConfig:
     track_ransac_thr: float | None = None
     # with track_ransac_thr: the tight consensus only where it separates two motions (tracker._feature_motion). The
     # 1 cm RANSAC runs as without the option (same random stream); the tight one on its own stream, and it replaces
-    # the 1 cm fit only when at least track_gate_min of the 1 cm inliers stay within track_ransac_thr of where the
-    # previous pose puts them (matches that did not move) and are outliers of the tight fit. A body that moves less
-    # than the tight threshold per frame, or whose matches all move with it, keeps the 1 cm fit (bit for bit).
+    # the 1 cm fit only when the tight fit moves its inliers at least track_ransac_thr (median) from where the previous
+    # pose puts them and at least track_gate_min of the 1 cm inliers stay within track_ransac_thr of that (matches that
+    # did not move) and are outliers of the tight fit. A body at rest or moving less than the tight threshold per
+    # frame, or whose matches all move with it, keeps the 1 cm fit (bit for bit).
     track_ransac_gate: bool = False
     track_gate_min: int = 3
     min_inlier_frac: float = 0.35  # below: lost track

@@ -106,3 +106,22 @@ def test_gate_needs_the_previous_pose_and_a_positive_count():
     assert np.array_equal(X0, X1)
     with pytest.raises(ValueError):
         TrackingConfig(track_gate_min=0)
+
+
+def test_gate_ignores_a_body_at_rest_with_keypoint_noise_near_the_threshold():
+    # at rest with keypoints as noisy as the tight threshold, some 1 cm inliers that fit the previous pose fall out of
+    # the tight fit by noise alone; the tight fit does not move its inliers by the threshold, so nothing is separated
+    from service.tracking.tracker import _separates
+
+    gate = TrackingConfig(track_ransac_thr=0.004, track_ransac_gate=True)
+    noisy_outliers = 0
+    for seed in range(10):
+        fW, fO, _ = _turning_cap(seed, deg=0.0, static_frac=0.0, noise=0.002)
+        Xl, il = ransac_rigid(fW, fO, gate.ransac_thr, rng=np.random.default_rng(0), min_inliers=12)
+        Xt, it = ransac_rigid(fW, fO, 0.004, rng=np.random.default_rng(1), min_inliers=12)
+        still = np.linalg.norm(fW - fO, axis=1) < 0.004
+        noisy_outliers += int(np.sum(il & still & ~it) >= gate.track_gate_min)
+        assert _separates(fW, fO, il, it, np.eye(4), 0.004, Xt) == 0
+        Xg, ig = _gated(fW, fO, gate)
+        assert np.array_equal(Xg, Xl) and np.array_equal(ig, il)
+    assert noisy_outliers > 0
