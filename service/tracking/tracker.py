@@ -429,7 +429,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     sil_Q = _sil_model(model, keyframes, rims, cfg) if sil_st else None
     n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
     frng = np.random.default_rng(cfg.seed + 1)  # RANSACs of the keyframe features (own stream: rng unchanged)
-    trng = np.random.default_rng(cfg.seed + 2)  # the gated tight consensus (track_ransac_gate; own stream)
     landings: list = []  # resettle.Landing of every topple landing checked (cfg.resettle)
     for i in range(1, N):
         o = observe(session, i, cfg, rng)
@@ -447,7 +446,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         fW, fO = _feature_corr(o, obs[a], X[a], keyframes, lost=(a != i - 1))
         feat_W = feat_O = None
         if len(fW) >= max(6, cfg.feat_min_inliers):
-            Xr, inl = _feature_motion(fW, fO, cfg, rng, X[a], trng)
+            Xr, inl = _feature_motion(fW, fO, cfg, rng)
             if Xr is not None:
                 Xc = X_inv(Xr)  # fO = Xr fW -> Xr = X_OW
                 cands.append(Xc)
@@ -1195,45 +1194,18 @@ def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: li
     return np.concatenate(A), np.concatenate(B)
 
 
-def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np.random.Generator,
-                    X_prev: np.ndarray | None = None, trng: np.random.Generator | None = None
+def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np.random.Generator
                     ) -> tuple[np.ndarray | None, np.ndarray]:
     """RANSAC rigid fit (X_OW, inlier mask) of the tracking loop's ORB correspondences fW (current point, W) ↔ fO
     (same point, O): at ``track_ransac_thr`` first when set, at ``ransac_thr`` when that finds fewer than
     ``feat_min_inliers`` (or when it is None). A keypoint whose patch lies on the silhouette or an occluder's edge
     stays put in the image while a small body turns under it; within the wide threshold of a surface that moved
-    less than it (a 3 cm egg turning 5°/frame: 2.6 mm) it joins the consensus and pulls the fit toward no motion.
-    With ``track_ransac_gate``: the ``ransac_thr`` fit (from ``rng``, as without the option) unless the tight one
-    (from ``trng``) separates two motions (``_separates``; X_prev = X_WO of the frame the matches were taken from)."""
-    if cfg.track_ransac_thr is not None and cfg.track_ransac_gate and X_prev is not None and trng is not None:
-        Xl, il = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
-        if Xl is None:
-            return Xl, il
-        Xt, it = ransac_rigid(fW, fO, cfg.track_ransac_thr, rng=trng, min_inliers=cfg.feat_min_inliers)
-        if Xt is not None and _separates(fW, fO, il, it, X_prev, cfg.track_ransac_thr, Xt) >= cfg.track_gate_min:
-            return Xt, it
-        return Xl, il
+    less than it (a 3 cm egg turning 5°/frame: 2.6 mm) it joins the consensus and pulls the fit toward no motion."""
     if cfg.track_ransac_thr is not None:
         Xr, inl = ransac_rigid(fW, fO, cfg.track_ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
         if Xr is not None:
             return Xr, inl
     return ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
-
-
-def _separates(fW: np.ndarray, fO: np.ndarray, loose: np.ndarray, tight: np.ndarray, X_prev: np.ndarray,
-               thr: float, X_tight: np.ndarray) -> int:
-    """How many matches the tight consensus (fit X_tight, X_OW; inlier mask ``tight``) separates from the loose one
-    (mask ``loose``) as a second, static motion: 0 when the tight fit moves its own inliers (median) less than ``thr``
-    (m) from where the previous pose X_prev (X_WO) puts them (two motions closer than the threshold cannot be told
-    apart: a body at rest or moving slowly), else the loose inliers that are outliers of the tight fit and lie within
-    ``thr`` of where X_prev puts them, i.e. whose current point fW (W) is where their point fO (O) was."""
-    X_OW = X_inv(X_prev)
-    at_prev = fW @ X_OW[:3, :3].T + X_OW[:3, 3]  # where each match's point would be in O had the body not moved
-    moved = np.linalg.norm(fW[tight] @ X_tight[:3, :3].T + X_tight[:3, 3] - at_prev[tight], axis=1)
-    if not np.median(moved) >= thr:
-        return 0
-    still = np.linalg.norm(at_prev - fO, axis=1) < thr
-    return int(np.sum(loose & still & ~tight))
 
 
 def _kf_features(kp_W: np.ndarray, desc: np.ndarray | None, X_WO: np.ndarray, keyframes: list[Keyframe],

@@ -92,14 +92,6 @@ class TrackingConfig:
     # Off: 0.004 gained on 3 of 4 development eggs (27-37 -> 18-27 deg median) and lost on the evaluation egg 707
     # (6.91 -> 9.68 deg), 704 and 709 (docs/tracking.md, "The loop's lag in a fast roll")
     track_ransac_thr: float | None = None
-    # with track_ransac_thr: the tight consensus only where it separates two motions (tracker._feature_motion). The
-    # 1 cm RANSAC runs as without the option (same random stream); the tight one on its own stream, and it replaces
-    # the 1 cm fit only when the tight fit moves its inliers at least track_ransac_thr (median) from where the previous
-    # pose puts them and at least track_gate_min of the 1 cm inliers stay within track_ransac_thr of that (matches that
-    # did not move) and are outliers of the tight fit. A body at rest or moving less than the tight threshold per
-    # frame, or whose matches all move with it, keeps the 1 cm fit (bit for bit).
-    track_ransac_gate: bool = False
-    track_gate_min: int = 3
     min_inlier_frac: float = 0.35  # below: lost track
     max_rmse: float = 0.006  # above: lost track
     max_speed: float = 1.5  # a pose farther than this (m/s) or
@@ -466,7 +458,7 @@ class TrackingConfig:
                      "sil_max_step_deg", "sil_max_inlier_loss"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
-        for name in ("spin_features", "spin_min_votes", "spin_smooth", "sil_points", "track_gate_min"):
+        for name in ("spin_features", "spin_min_votes", "spin_smooth", "sil_points"):
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
 
