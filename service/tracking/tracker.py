@@ -31,8 +31,6 @@ adopted too (``resettle_rest_deg``, off), and fall frames off the turn about the
 pose their points fit (``resettle_path``, off). After the gauge, the settled stretch of every landing checked is laid
 flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
 registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
-Then the fall's frames of every landing checked may be registered again in the turns about the leading bottom edge
-with the edge sliding on the table (``resettle_edge``, off).
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
 normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
 or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
@@ -587,8 +585,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         if cfg.resettle_flush_deg > 0 and landings:  # the settled stretch flush with the table, re-registered (after the
             # gauge: the base the object stood on is -z in the final O)
             model = _resettle_flush(session, obs, X, tracked, frac, rmse, keyframes, carver, landings, cfg) or model
-        if cfg.resettle_edge and landings:  # the fall's frames in the turns about the leading bottom edge
-            _resettle_edge(session, obs, X, tracked, frac, rmse, model, keyframes, landings, cfg)
     spin = tilt = None
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
@@ -830,69 +826,6 @@ def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
             X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse
             tracked[j] = _good(r, cfg)
             out.append((j, d_rot, d_t, True))
-    return out
-
-
-def _resettle_edge(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
-                   rmse: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], landings: list,
-                   cfg: TrackingConfig) -> list[tuple[int, bool]]:
-    """The fall's frames of every topple landing checked (adopted or not; after the settled stretch is laid flush,
-    ``_resettle_flush``) registered in the motions of a body tipping about its leading bottom edge on the table:
-    between the last tracked frame a before the fall and the settled frame i the object turns about that edge
-    (``resettle.leading_pivot``: the base of frame 0's footprint placed at X[a], at its extent along the tipping
-    direction, on the table; axis: that of the rotation X[a] → X[i]) while the edge may slide on the table. Each frame
-    a < j < i is registered by ``resettle.edge_register`` (the turn about the edge and the edge's horizontal shift)
-    from the ``resettle_edge_starts`` poses of the turn (``resettle.tip_path``, every ``resettle_path_step_deg``) its
-    points fit best (inlier fraction, then mean distance capped at 2 cm); the best fit among the results consistent
-    with the table and the frame's own free space (``resettle.pose_consistent``) replaces the frame's pose when the
-    pose is lost or inconsistent, or when the fit's inlier fraction is at most ``resettle_edge_tol`` below the pose's
-    and its points lie no farther from the model on average (mean distance capped at 2 cm).
-    A body with neither a flat side nor a flat face where it lies (the test of ``_resettle_flush``: an egg) is left as
-    it is. Updates X, tracked, frac, rmse in place (X_WO in W, m); returns per frame looked at (index, replaced)."""
-    from service.tracking.geometry import icp_result
-    from service.tracking.resettle import edge_register, path_keys, rests_flat
-
-    Q = model.Q[:: max(1, len(model.Q) // 4000)]
-    base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
-    out = []
-    for ld in landings:
-        i = ld.i
-        before = [j for j in range(ld.g0) if tracked[j]]
-        pre = [kf for kf in keyframes if kf.index < ld.g0]
-        if not before or not pre or not tracked[i]:
-            continue
-        M = _model_from(pre, cfg.model_voxel)
-        down = X[i][:3, :3].T @ np.array([0.0, 0.0, -1.0])
-        if not rests_flat(M.Q, M.N, base_n, down):
-            continue  # a curved body (an egg) has no edge to tip about (the test of _resettle_flush)
-        a = before[-1]
-        tip = _tip_poses(session, X, a, i, pre, cfg)
-        if tip is None:
-            continue
-        pivot, poses = tip
-        w = so3_log(X[i][:3, :3] @ X[a][:3, :3].T)
-        axis = w / np.linalg.norm(w)
-        for j in range(a + 1, i):
-            o = obs[j]
-            if len(o.P_W) < cfg.min_points:
-                continue
-            ok = _consistent_in(session, j, Q, cfg)
-            keys = path_keys(o.P_W, poses, model.tree, cfg.inlier_dist)
-            best = None
-            for k in sorted(range(len(poses)), key=lambda k: keys[k], reverse=True)[: cfg.resettle_edge_starts]:
-                Xe = edge_register(o.P_W, poses[k], model.Q, model.N, pivot, axis, model.tree)
-                if ok(Xe):
-                    ke = path_keys(o.P_W, [Xe], model.tree, cfg.inlier_dist)[0]
-                    if best is None or ke > best[1]:
-                        best = (Xe, ke)
-            cur = path_keys(o.P_W, [X[j]], model.tree, cfg.inlier_dist)[0]
-            take = best is not None and (not (tracked[j] and ok(X[j])) or (best[1][0] >= cur[0] - cfg.resettle_edge_tol
-                                                                           and best[1][1] >= cur[1]))
-            if take:
-                r = icp_result(X_inv(best[0]), o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist)
-                X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse
-                tracked[j] = _good(r, cfg)
-            out.append((j, bool(take)))
     return out
 
 

@@ -388,16 +388,6 @@ class TrackingConfig:
     resettle_path_deg: float = 5.0
     resettle_path_dist: float = 0.02
     resettle_path_step_deg: float = 1.0
-    # the fall's frames of every landing checked (adopted or not) registered again after the settled stretch is laid
-    # flush (tracker._resettle_edge, resettle.edge_register): in the motions of a body tipping about its leading
-    # bottom edge on the table (a turn about the edge, the edge sliding on the table; 3 unknowns instead of 6), started
-    # from the resettle_edge_starts poses of the turn from the last pose before the fall to the settled pose (every
-    # resettle_path_step_deg) the frame's points fit best; the best fit consistent with the table and the frame's
-    # free space replaces the frame's pose when its inlier fraction is at most resettle_edge_tol below the pose's and its
-    # mean distance is not larger (docs/tracking.md "Fall frames in the turns about the leading edge")
-    resettle_edge: bool = False  # on: development 820 worst 22.3 -> 3.2 deg, 1043 3.9 -> 5.5 deg; evaluation 703 3.06 -> 4.59 deg, 710 6.30 deg kept
-    resettle_edge_tol: float = 0.02
-    resettle_edge_starts: int = 3
     # the leading face made perpendicular to the base the object stood on at frame 0 when its fitted normal is within
     # resettle_square_deg of that (resettle.landing_pose; 0: off)
     resettle_square_deg: float = 0.0  # 5: development 820 join 1.42 -> 0.55 deg, median 1.99 -> 1.26 deg
@@ -543,10 +533,6 @@ class TrackingConfig:
         for name in ("resettle_flush_deg", "resettle_flush_square_deg"):
             if not 0.0 <= getattr(self, name) < 90.0:
                 raise ValueError(f"TrackingConfig.{name} must be in [0, 90), not {getattr(self, name)!r}")
-        if not (0.0 <= self.resettle_edge_tol < 1.0 and isinstance(self.resettle_edge_starts, int)
-                and self.resettle_edge_starts >= 1):
-            raise ValueError(f"TrackingConfig.resettle_edge_tol must be in [0, 1) and resettle_edge_starts an int >= 1, "
-                             f"not {self.resettle_edge_tol!r}, {self.resettle_edge_starts!r}")
         for name in ("resettle_path_deg", "resettle_path_dist", "resettle_path_step_deg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, not {getattr(self, name)!r}")
