@@ -209,12 +209,10 @@ def spin_matrix(a: np.ndarray, c: np.ndarray, theta: float) -> np.ndarray:
 
 
 def interior_features(gray: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray, X_WC: np.ndarray,
-                      border_px: int, n_features: int, fit_px: int = 0) -> tuple[np.ndarray, np.ndarray | None]:
+                      border_px: int, n_features: int) -> tuple[np.ndarray, np.ndarray | None]:
     """ORB keypoints of a grey image (H,W) uint8 at least ``border_px`` inside the object mask (H,W) with valid depth
     (H,W) metres: (F,3) points in W and (F,32) descriptors (None when there are none). Detected on the crop around
-    the mask (same keypoints, less work). ``fit_px`` > 0: each keypoint's depth is the value at the keypoint of a
-    quadratic fitted to the mask's depth readings within ±fit_px pixels (``local_depth``) instead of its own pixel's
-    reading (kept where the fit has too few readings)."""
+    the mask (same keypoints, less work)."""
     import cv2
 
     m = mask.astype(np.uint8)
@@ -238,64 +236,8 @@ def interior_features(gray: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: 
     good = z > 0
     if not good.any():
         return np.zeros((0, 3)), None
-    if fit_px > 0:
-        z = z.astype(np.float64)
-        z[good] = local_depth(depth, mask, uv[good], fit_px, z[good])
     Pc = np.stack([(uv[good, 0] - K[0, 2]) / K[0, 0] * z[good], (uv[good, 1] - K[1, 2]) / K[1, 1] * z[good], z[good]], 1)
     return Pc @ X_WC[:3, :3].T + X_WC[:3, 3], des[good]
-
-
-# ---- keypoint depth from the frame's own depth around it (``spin_depth_fit_px``) ----------------------------------
-#
-# A vote's azimuth comes from the keypoint's 3-D point, lifted with the depth reading of its one pixel. That reading
-# carries the sensor's per-pixel noise (synthetic lab: σ = 0.8 + 1.8 z² mm, 80 % of its variance independent per
-# pixel, about 2 mm at 0.8 m); on a bottle (radius 20-34 mm where the keypoints are) seen at 40-60° from the normal
-# the point then moves along the surface by up to 2 sin α mm, 3-6° of azimuth per keypoint and more for the
-# difference of two frames, wider than the ±3° vote window. Between consecutive frames of a tilting development
-# bottle pivot (945, frames 160-180, true poses) the keypoints that mark the same surface point vote 0.0 ± 0.1°
-# when placed on the true surface but spread ±3° with their own depth, and the mode of that spread is pulled by the
-# keypoints whose 2-D position jumped with the changing view (their votes −14…+11°, mostly negative there): the
-# chain carried −0.3…−0.9° per frame through the tilt. The surface is smooth over a few pixels (its radius of
-# curvature ≥ 16 mm against ±7 mm for ±5 px at 0.8 m), so a quadratic in the pixel offsets fitted to the readings of
-# the mask around the keypoint (least squares, two passes dropping readings beyond 3 robust σ: flying pixels, a
-# fold) estimates the depth where the ray meets the surface with the independent part of the noise divided by
-# about √(n/6) (n ≈ 100 readings for ±5 px); the part correlated over tens of pixels (20 % of the variance) stays,
-# shared by neighbouring keypoints. Nothing but the frame's own depth is used: no model, no pose.
-# Off by default: development pivots 911, 945, 1064 gain, 1061-1063 lose 0.05-0.15° median, and the evaluation
-# bottle pivot 711 and bottle topple 704 lose (docs/tracking.md "Keypoint depth from the surface around it").
-
-def local_depth(depth: np.ndarray, mask: np.ndarray, uv: np.ndarray, w: int, z0: np.ndarray, min_px: int = 20
-                ) -> np.ndarray:
-    """(F,) metres: the depth at the sub-pixel points uv (F,2) (u, v) of a quadratic in the pixel offsets fitted to
-    the readings (H,W) metres (0: none) of the mask (H,W) within ±w pixels (two passes, readings beyond 3 robust σ
-    of the first fit dropped); z0 (F,) where fewer than ``min_px`` readings remain."""
-    H, W = depth.shape
-    off = np.arange(-w, w + 1)
-    dv, du = np.meshgrid(off, off, indexing="ij")
-    ui = np.round(uv[:, 0]).astype(int)
-    vi = np.round(uv[:, 1]).astype(int)
-    U = ui[:, None] + du.ravel()[None]  # (F, P) pixel columns of each window
-    V = vi[:, None] + dv.ravel()[None]
-    inside = (U >= 0) & (U < W) & (V >= 0) & (V < H)
-    Uc, Vc = np.clip(U, 0, W - 1), np.clip(V, 0, H - 1)
-    Z = depth[Vc, Uc].astype(np.float64)
-    ok = inside & (Z > 0) & mask[Vc, Uc].astype(bool)
-    x, y = U - uv[:, :1], V - uv[:, 1:]  # offsets from the sub-pixel point: the constant term is the depth there
-    A = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], -1)  # (F, P, 6)
-    z = np.asarray(z0, np.float64).copy()
-    keep = ok
-    for _ in range(2):
-        Wt = keep.astype(np.float64)
-        M = np.einsum("fpi,fp,fpj->fij", A, Wt, A) + 1e-9 * np.eye(6)
-        b = np.einsum("fpi,fp,fp->fi", A, Wt, Z)
-        c = np.linalg.solve(M, b[..., None])[..., 0]
-        r = Z - np.einsum("fpi,fi->fp", A, c)
-        s = 1.4826 * np.array([np.median(np.abs(rr[k])) if k.any() else 0.0 for rr, k in zip(r, keep)]) + 1e-4
-        keep = ok & (np.abs(r) < 3 * s[:, None])
-    n = keep.sum(1)
-    fit = n >= min_px
-    z[fit] = c[fit, 0]
-    return z
 
 
 def _cyl(P_O: np.ndarray, a: np.ndarray, c: np.ndarray, e1: np.ndarray, e2: np.ndarray

@@ -213,8 +213,7 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
 
         if gray is None:
             gray = cv2.cvtColor(session.rgb(i), cv2.COLOR_RGB2GRAY)
-        spin_feats = interior_features(gray, depth, mask, K, X_WC,
-                                       cfg.spin_border_px, cfg.spin_features, cfg.spin_depth_fit_px)
+        spin_feats = interior_features(gray, depth, mask, K, X_WC, cfg.spin_border_px, cfg.spin_features)
     return FrameObs(P_W, N_W, kp_W, desc, n_mask, C, spin_feats)
 
 

@@ -359,12 +359,6 @@ class TrackingConfig:
     # correction median-filtered over spin_smooth as before (docs/tracking.md "Twist smoothed instead of the correction";
     # development bottle pivots 911 7.05° -> 4.17°, 553 7.08° -> 3.53° worst frame)
     spin_twist_smooth: int = 15
-    # spin closure (spin.local_depth): each interior keypoint's depth taken from a quadratic fitted to the mask's depth
-    # readings within ±spin_depth_fit_px pixels instead of its one pixel's reading (per-pixel noise of 2 mm moves a
-    # keypoint on a curved surface seen obliquely by 3-6° of azimuth); 0: the pixel's reading (docs/tracking.md
-    # "Keypoint depth from the surface around it": ±5 px gains on development pivots 911 and 945 (worst frame 5.53° ->
-    # 4.16°), loses 0.05-0.15° median on 1061-1063, and evaluation 711 goes 1.11° / 6.26° -> 1.25° / 6.51°: off)
-    spin_depth_fit_px: int = 0
     # a body of revolution does not turn about its own axis while it topples (service.tracking.fall: no force on it
     # has a moment about the axis): over a topple of the tracked poses (the axis' angle from the vertical changing by
     # more than spin_fall_rate_deg per frame and by >= spin_fall_min_deg in all, trimmed by spin_fall_edge_deg at
@@ -473,8 +467,6 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_mixed_dilate must be >= 0, not {self.spin_mixed_dilate!r}")
         if not (isinstance(self.spin_twist_smooth, int) and self.spin_twist_smooth >= 0):
             raise ValueError(f"TrackingConfig.spin_twist_smooth must be an int >= 0, not {self.spin_twist_smooth!r}")
-        if not (isinstance(self.spin_depth_fit_px, int) and self.spin_depth_fit_px >= 0):
-            raise ValueError(f"TrackingConfig.spin_depth_fit_px must be an int >= 0, not {self.spin_depth_fit_px!r}")
         for name in ("spin_graph_gate_deg", "spin_graph_rate_deg"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
