@@ -98,15 +98,14 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
               sep: float = 0.5, profile: str = "off", max_deg: float = 0.0, gate_deg: float = 10.0, n_short: int = 2,
               rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4, fast_rate_deg: float = 2.0,
               fast_dilate: int = 4, fast_votes: int = 60, fall_rate_deg: float = 0.4, fall_min_deg: float = 45.0,
-              fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0, twist_axis: str = "found",
+              fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0,
               table_z: float | None = None, roll: dict | None = None) -> tuple[SpinResult, np.ndarray]:
     """(spin correction, (N,) bool frames that took the no-twist increments) for the poses X_WO (N,4,4) of a body of
     revolution with model Q, N (M,3) in O and interior features ``feats`` (as ``spin_mixed``, whose settings the
     other arguments are): ``spin_mixed``'s estimate, except over the topples (``topple_frames``) where its spin
     change differs from the no-twist change by more than ``fall_tol_deg``: those take the no-twist increments and
     the other weak fast frames the graph's, as in ``spin_mixed`` (module docstring). No topple, or none refused by
-    the guard: ``spin_mixed``'s result itself. ``twist_axis`` "vertical": the twist increments are taken about the
-    vertical of frame 0 when the found axis is within 15° of it (``standing_axis``), else about the found axis.
+    the guard: ``spin_mixed``'s result itself.
     With ``table_z`` (the table's height in W), the rolling stretches after the topple that the texture confirms
     but lags take the roll's increments as well (``with_roll``; ``roll``: the keyword settings of ``spin.roll_spin``
     and ``spin.roll_stretches``)."""
@@ -143,7 +142,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
     fall = topple_frames(X_WO, a, rate_deg=fall_rate_deg, min_deg=fall_min_deg, edge_deg=fall_edge_deg)
     if not fall.any():
         return rolled(base, base_weak, base_inc, none), none
-    psi = twist_steps(X_WO, standing_axis(a) if twist_axis == "vertical" else a)
+    psi = twist_steps(X_WO, a)
     prior = spin_closure(feats, X_WO, Q, N, fast=fall, theta_fast=np.cumsum(np.where(fall, -psi, 0.0)), **kw)
     used = np.zeros(n, bool)
     for s, e in runs(fall):  # the guard: the texture kept where it agrees with the no-twist change
@@ -201,14 +200,3 @@ def with_roll(res: SpinResult, feats: list, X_WO: np.ndarray, Q: np.ndarray, N: 
     inc = np.where(rolling, np.r_[0.0, np.diff(phi - psi)], inc)
     return spin_closure(feats, X_WO, Q, N, fast=fixed | rolling, theta_fast=np.cumsum(inc), **kw)
 
-
-def standing_axis(a: np.ndarray, stand_deg: float = 15.0) -> np.ndarray:
-    """(3,) the axis in O about which a body of revolution's twist is measured through its topple: the vertical of
-    frame 0 (ẑ in O, X_WO(0) having identity rotation; sign of a) when the found axis a (3,) is within ``stand_deg`` of
-    it — the body stood on its base, a disc perpendicular to its axis, so that vertical is its axis — else a itself.
-    The found axis is 3-7° off the true one on the development bottles (the vertical of frame 0: < 0.1°), and a
-    topple's 90° of tilt measured about an axis δ off carries 90° sin δ of false twist (881: +10° at the landing)."""
-    a = np.asarray(a, float) / np.linalg.norm(a)
-    if abs(a[2]) < np.cos(np.radians(stand_deg)):
-        return a
-    return np.array([0.0, 0.0, 1.0 if a[2] > 0 else -1.0])

@@ -1010,7 +1010,7 @@ def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConf
                        fast_dilate=cfg.spin_mixed_dilate, fast_votes=cfg.spin_mixed_votes,
                        fall_rate_deg=cfg.spin_fall_rate_deg, fall_min_deg=cfg.spin_fall_min_deg,
                        fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg,
-                       twist_axis=cfg.spin_fall_axis, table_z=table_z,
+                       table_z=table_z,
                        roll={**_roll_kw(cfg), "strong": cfg.spin_roll_votes}, **common, **graph)
     return res
 

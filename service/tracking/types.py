@@ -371,9 +371,6 @@ class TrackingConfig:
     spin_fall_min_deg: float = 45.0
     spin_fall_edge_deg: float = 1.0
     spin_fall_tol_deg: float = 3.0
-    # the axis of the no-twist increments: "found" (the spin closure's axis) or "vertical" (the vertical of frame 0
-    # when the found axis is within 15° of it: the body stood on its base; fall.standing_axis)
-    spin_fall_axis: str = "found"  # "vertical": development 881 10.56 -> 2.71 deg median, evaluation 704 worse
     # the fall's frames of an adopted join checked against the tipping motion (tracker._resettle_path,
     # resettle.tip_path): a frame lost, inconsistent, or more than resettle_path_deg / resettle_path_dist from the
     # turn about the leading bottom edge between the last pose before the fall and the join takes the path's pose
@@ -540,9 +537,6 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not 0 < self.spin_fall_min_deg <= 90:
             raise ValueError(f"TrackingConfig.spin_fall_min_deg must be in (0, 90], not {self.spin_fall_min_deg!r}")
-        if self.spin_fall_axis not in ("found", "vertical"):
-            raise ValueError(f"TrackingConfig.spin_fall_axis must be 'found' or 'vertical', not "
-                             f"{self.spin_fall_axis!r}")
         for name in ("lie_level_stand_deg", "lie_level_deg", "lie_level_max_deg"):
             if not 0 < getattr(self, name) < 90:
                 raise ValueError(f"TrackingConfig.{name} must be in (0, 90), not {getattr(self, name)!r}")
