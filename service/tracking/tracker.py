@@ -587,7 +587,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     spin = tilt = None
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
-        spin = _spin_closure(obs, X, model, cfg, session.table_height if cfg.spin_roll else None)
+        spin = _spin_closure(obs, X, model, cfg)
         if cfg.spin_tilt:
             tilt = _spin_tilt(obs, X, model, spin, cfg)
         if cfg.lie_level:  # a lying body of revolution: axis parallel to the table (service.tracking.lying)
@@ -927,11 +927,9 @@ def _spin_tau(model: ObjectModel, cfg: TrackingConfig) -> float:
     return cfg.spin_tau
 
 
-def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig,
-                  table_z: float | None = None) -> "SpinResult":
+def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig) -> "SpinResult":
     """Re-estimate the spin about the symmetry axis of a body of revolution (``service.tracking.spin``) and apply
-    it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture.
-    ``table_z``: the table's height, given when the rolling constraint is on (``cfg.spin_roll``)."""
+    it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture."""
     from service.tracking.spin import apply_spin, spin_closure
 
     empty = (np.zeros((0, 3)), None)
@@ -942,8 +940,8 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
     common["tau"] = _spin_tau(model, cfg)
     graph = dict(gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
                  long_votes=cfg.spin_graph_long_votes)
-    if cfg.spin_fall and cfg.spin_solver == "mixed":  # the mixed estimate, no spin in topples (+ the roll)
-        res = _spin_fall(feats, X, model, cfg, common, graph, table_z)
+    if cfg.spin_fall and cfg.spin_solver == "mixed":  # the mixed estimate, no spin in topples
+        res = _spin_fall(feats, X, model, cfg, common, graph)
     elif cfg.spin_solver == "graph":  # joint estimate over frame pairs (spin.spin_graph)
         from service.tracking.spin import spin_graph
 
@@ -953,8 +951,7 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
 
         res = spin_mixed(feats, X, model.Q, model.N, min_votes=cfg.spin_min_votes, graph_votes=cfg.spin_graph_votes,
                          fast_span=cfg.spin_mixed_span, fast_rate_deg=cfg.spin_mixed_rate_deg,
-                         fast_dilate=cfg.spin_mixed_dilate, fast_votes=cfg.spin_mixed_votes, table_z=table_z,
-                         roll=_roll_kw(cfg), **common, **graph)
+                         fast_dilate=cfg.spin_mixed_dilate, fast_votes=cfg.spin_mixed_votes, **common, **graph)
     else:  # the per-frame chain (spin.spin_closure)
         res = spin_closure(feats, X, model.Q, model.N, min_votes=cfg.spin_min_votes, **common)
     if cfg.spin_twist_smooth > 1:  # the body's twist median-filtered instead of the correction (spin.smooth_twist)
@@ -998,27 +995,17 @@ def _spin_tilt(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, spin: "Sp
     return res
 
 
-def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, common: dict, graph: dict,
-               table_z: float | None = None):
+def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, common: dict, graph: dict):
     """``fall.spin_fall`` with the tracker's settings: the mixed spin estimate, with no spin about the axis over the
-    topples where the texture lagged (service/tracking/fall.py); with ``table_z`` (``cfg.spin_roll``) the rolling
-    stretches after them take the roll's spin where the texture lags it (``fall.with_roll``)."""
+    topples where the texture lagged (service/tracking/fall.py)."""
     from service.tracking.fall import spin_fall
 
     res, _ = spin_fall(feats, X, model.Q, model.N, min_votes=cfg.spin_min_votes, graph_votes=cfg.spin_graph_votes,
                        fast_span=cfg.spin_mixed_span, fast_rate_deg=cfg.spin_mixed_rate_deg,
                        fast_dilate=cfg.spin_mixed_dilate, fast_votes=cfg.spin_mixed_votes,
                        fall_rate_deg=cfg.spin_fall_rate_deg, fall_min_deg=cfg.spin_fall_min_deg,
-                       fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg,
-                       table_z=table_z,
-                       roll={**_roll_kw(cfg), "strong": cfg.spin_roll_votes}, **common, **graph)
+                       fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg, **common, **graph)
     return res
-
-
-def _roll_kw(cfg: TrackingConfig) -> dict:
-    """The rolling constraint's settings (``spin.roll_spin`` and ``spin.roll_stretches`` keywords)."""
-    return dict(tilt_deg=cfg.spin_roll_tilt_deg, rate_deg=cfg.spin_roll_rate_deg, agree=cfg.spin_roll_agree,
-                tol=cfg.spin_roll_tol, radius=cfg.spin_roll_radius)
 
 
 def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], carver: "FreeSpace | None",

@@ -293,25 +293,6 @@ class TrackingConfig:
     mask_trim_iters: int = 3
     mask_trim_deep_px: int = 3
     mask_trim_min: float = 0.01
-    # rolling constraint (spin_solver "mixed"; spin.roll_spin): a body of revolution lying on the table (axis within
-    # spin_roll_tilt_deg of horizontal) that rolls (roll angle from the tracked translation over the contact radius
-    # changing faster than spin_roll_rate_deg per frame) takes the roll's spin over the stretch when the texture
-    # turned the same way by at least spin_roll_agree of it (a sliding body does not) and lags the roll by more than
-    # spin_roll_tol of it; off: the roll is off by up to 50 % where the pushed bottle slips (evaluation 704:
-    # worst frame 7.9° -> 28.7°; with spin_fall, fall.with_roll: 8.58° -> 19.41°); docs/tracking.md "Rolling
-    # constraint", "The roll after the landing"
-    spin_roll: bool = False
-    spin_roll_tilt_deg: float = 10.0
-    spin_roll_rate_deg: float = 1.0
-    spin_roll_agree: float = 0.3
-    spin_roll_tol: float = 0.2  # a texture within this fraction of the roll is kept (the roll's own error)
-    # the contact radius of the roll: "contact" (the model's median radius at the contacts' median height) or
-    # "widest" (the radius of the profile's widest straight stretch, the generator a lying body rests on)
-    spin_roll_radius: str = "contact"
-    # with spin_fall: a rolling stretch whose chain pooled at least this many texture votes per frame on average keeps
-    # the texture (the roll only where the texture is weak, as the mixed estimate's spin_mixed_votes); None: the
-    # guard above alone
-    spin_roll_votes: float | None = 60.0
     # the settled object after a topple's landing (service.tracking.resettle; docs/tracking.md "Settled object joined
     # by the fall's physics"): resettle_delay frames after the last fast step of the loop (> settle_fast_deg per
     # frame), when the steps from resettle_tip_deg per frame on turned >= resettle_min_tip_deg about a horizontal
@@ -364,8 +345,7 @@ class TrackingConfig:
     # more than spin_fall_rate_deg per frame and by >= spin_fall_min_deg in all, trimmed by spin_fall_edge_deg at
     # both ends) the spin correction takes the increments that leave the tracked rotation no twist about the axis,
     # when the default estimate's spin change over it differs from theirs by more than spin_fall_tol_deg (spin_solver
-    # "mixed" only; with spin_roll the rolling stretches after it take the roll where the texture is weak,
-    # fall.with_roll); docs/tracking.md "Fall without spin", "The roll after the landing"
+    # "mixed" only); docs/tracking.md "Fall without spin"
     spin_fall: bool = True  # on: evaluation 704 5.21 -> 2.08 deg median rotation (worst 7.86 -> 9.73), others identical
     spin_fall_rate_deg: float = 0.4
     spin_fall_min_deg: float = 45.0
@@ -493,21 +473,6 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.mask_trim_min must be in [0, 1], not {self.mask_trim_min!r}")
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
-        if self.spin_roll and self.spin_solver != "mixed":
-            raise ValueError(f"TrackingConfig.spin_roll needs spin_solver 'mixed', not {self.spin_solver!r}")
-        if not 0 < self.spin_roll_tilt_deg < 90:
-            raise ValueError(f"TrackingConfig.spin_roll_tilt_deg must be in (0, 90), not {self.spin_roll_tilt_deg!r}")
-        if not self.spin_roll_rate_deg > 0:
-            raise ValueError(f"TrackingConfig.spin_roll_rate_deg must be > 0, not {self.spin_roll_rate_deg!r}")
-        if not 0 <= self.spin_roll_agree <= 1:
-            raise ValueError(f"TrackingConfig.spin_roll_agree must be in [0, 1], not {self.spin_roll_agree!r}")
-        if not 0 <= self.spin_roll_tol < 1:
-            raise ValueError(f"TrackingConfig.spin_roll_tol must be in [0, 1), not {self.spin_roll_tol!r}")
-        if self.spin_roll_votes is not None and not self.spin_roll_votes > 0:
-            raise ValueError(f"TrackingConfig.spin_roll_votes must be None or > 0, not {self.spin_roll_votes!r}")
-        if self.spin_roll_radius not in ("contact", "widest"):
-            raise ValueError(f"TrackingConfig.spin_roll_radius must be 'contact' or 'widest', not "
-                             f"{self.spin_roll_radius!r}")
         for name in ("resettle_tip_deg", "resettle_min_tip_deg", "resettle_min_deg", "resettle_min_dist",
                      "resettle_max_shift", "resettle_max_yaw_deg", "resettle_seen"):
             if not getattr(self, name) >= 0:
