@@ -98,18 +98,13 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
               sep: float = 0.5, profile: str = "off", max_deg: float = 0.0, gate_deg: float = 10.0, n_short: int = 2,
               rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4, fast_rate_deg: float = 2.0,
               fast_dilate: int = 4, fast_votes: int = 60, fall_rate_deg: float = 0.4, fall_min_deg: float = 45.0,
-              fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0, twist_axis: str = "found",
-              table_z: float | None = None, roll: dict | None = None) -> tuple[SpinResult, np.ndarray]:
+              fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0) -> tuple[SpinResult, np.ndarray]:
     """(spin correction, (N,) bool frames that took the no-twist increments) for the poses X_WO (N,4,4) of a body of
     revolution with model Q, N (M,3) in O and interior features ``feats`` (as ``spin_mixed``, whose settings the
     other arguments are): ``spin_mixed``'s estimate, except over the topples (``topple_frames``) where its spin
     change differs from the no-twist change by more than ``fall_tol_deg``: those take the no-twist increments and
     the other weak fast frames the graph's, as in ``spin_mixed`` (module docstring). No topple, or none refused by
-    the guard: ``spin_mixed``'s result itself. ``twist_axis`` "vertical": the twist increments are taken about the
-    vertical of frame 0 when the found axis is within 15° of it (``standing_axis``), else about the found axis.
-    With ``table_z`` (the table's height in W), the rolling stretches after the topple that the texture confirms
-    but lags take the roll's increments as well (``with_roll``; ``roll``: the keyword settings of ``spin.roll_spin``
-    and ``spin.roll_stretches``)."""
+    the guard: ``spin_mixed``'s result itself."""
     n = len(X_WO)
     memo: dict = {}
     parts: dict = {}  # spin_mixed's graph solution, reused below (the same links: same poses, axis and settings)
@@ -133,17 +128,10 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
     kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match_once,
               sep=sep, profile=profile, max_deg=max_deg, axis=axis)
 
-    def rolled(res: SpinResult, fixed: np.ndarray, inc: np.ndarray, topple: np.ndarray) -> SpinResult:
-        if table_z is None:
-            return res
-        return with_roll(res, feats, X_WO, Q, N, fixed, inc, topple, table_z, roll or {}, **kw)
-
-    base_weak = parts.get("weak", none)
-    base_inc = np.where(base_weak, np.r_[0.0, np.diff(parts["theta_g"])], 0.0) if base_weak.any() else np.zeros(n)
     fall = topple_frames(X_WO, a, rate_deg=fall_rate_deg, min_deg=fall_min_deg, edge_deg=fall_edge_deg)
     if not fall.any():
-        return rolled(base, base_weak, base_inc, none), none
-    psi = twist_steps(X_WO, standing_axis(a) if twist_axis == "vertical" else a)
+        return base, none
+    psi = twist_steps(X_WO, a)
     prior = spin_closure(feats, X_WO, Q, N, fast=fall, theta_fast=np.cumsum(np.where(fall, -psi, 0.0)), **kw)
     used = np.zeros(n, bool)
     for s, e in runs(fall):  # the guard: the texture kept where it agrees with the no-twist change
@@ -151,7 +139,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
         if abs(d) > np.radians(fall_tol_deg):
             used[s:e] = True
     if not used.any():
-        return rolled(base, base_weak, base_inc, none), none
+        return base, none
     weak = np.zeros(n, bool)
     fast = fast_frames(X_WO, fast_span, fast_rate_deg, fast_dilate)
     if fast[1:].any():
@@ -169,46 +157,5 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
             theta_g = solve_spin_graph(n, links) if len(links) else np.zeros(n)
         inc = np.where(weak, np.r_[0.0, np.diff(theta_g)], inc)
     res = spin_closure(feats, X_WO, Q, N, fast=used | weak, theta_fast=np.cumsum(inc), **kw)
-    return rolled(res, used | weak, inc, used), used
+    return res, used
 
-
-def with_roll(res: SpinResult, feats: list, X_WO: np.ndarray, Q: np.ndarray, N: np.ndarray, fixed: np.ndarray,
-              inc: np.ndarray, topple: np.ndarray, table_z: float, roll: dict, **kw) -> SpinResult:
-    """The spin correction ``res`` of the poses X_WO (N,4,4), whose chain took the increments ``inc`` (N,) rad on the
-    frames ``fixed`` (N,) bool, re-run with the rolling stretches outside the ``topple`` frames (N,) bool that the
-    texture confirms but lags (``spin.roll_spin``, ``spin.roll_stretches``: the guard compares the roll with ``res``)
-    taking the roll's increments (over the graph's, as in ``spin.spin_mixed``); ``res`` itself when there is none,
-    when the model is egg-like (no single weak rotation: ``spin.revolution_axis``) or when ``res`` was rejected.
-    ``kw``: the chain's settings (``spin.spin_closure``, with ``axis``)."""
-    from service.tracking.spin import revolution_axis, roll_spin, roll_stretches
-
-    if not res.is_revolution or res.rejected or not revolution_axis(Q, N, kw["tau"], kw["sep"])[0]:
-        return res
-    rkw = dict(roll)
-    stretch_kw = {k: rkw.pop(k) for k in ("min_deg", "agree", "tol", "strong") if k in rkw}
-    rolling, phi, psi = roll_spin(X_WO, Q, res.axis_O, res.point_O, table_z, **rkw)
-    rolling &= ~topple
-    if not rolling.any():
-        return res
-    if stretch_kw.get("strong") is not None:  # the roll only where the texture is weak
-        stretch_kw["votes"] = res.votes
-    else:
-        stretch_kw.pop("strong", None)
-    rolling = roll_stretches(res.theta, rolling, phi, psi, **stretch_kw)
-    rolling[0] = False
-    if not rolling.any():
-        return res
-    inc = np.where(rolling, np.r_[0.0, np.diff(phi - psi)], inc)
-    return spin_closure(feats, X_WO, Q, N, fast=fixed | rolling, theta_fast=np.cumsum(inc), **kw)
-
-
-def standing_axis(a: np.ndarray, stand_deg: float = 15.0) -> np.ndarray:
-    """(3,) the axis in O about which a body of revolution's twist is measured through its topple: the vertical of
-    frame 0 (ẑ in O, X_WO(0) having identity rotation; sign of a) when the found axis a (3,) is within ``stand_deg`` of
-    it — the body stood on its base, a disc perpendicular to its axis, so that vertical is its axis — else a itself.
-    The found axis is 3-7° off the true one on the development bottles (the vertical of frame 0: < 0.1°), and a
-    topple's 90° of tilt measured about an axis δ off carries 90° sin δ of false twist (881: +10° at the landing)."""
-    a = np.asarray(a, float) / np.linalg.norm(a)
-    if abs(a[2]) < np.cos(np.radians(stand_deg)):
-        return a
-    return np.array([0.0, 0.0, 1.0 if a[2] > 0 else -1.0])

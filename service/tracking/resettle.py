@@ -48,10 +48,6 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    (``side_pose``); the stretch's keyframes move with their frames, the model is rebuilt and every frame is
    registered again in the motions that keep it resting (``planar_register``: a turn about the vertical, a
    horizontal shift).
-7. Then, option (``tracker._resettle_edge``, ``resettle_edge``, off): the fall's frames of every landing checked are
-   registered in the motions of a body tipping about its leading bottom edge with the edge sliding on the table
-   (``edge_register``: a turn about the edge, a horizontal shift), started from the poses of the turn their points fit
-   best (``path_keys``); the fit replaces a frame's pose when it is consistent and fits at least as closely.
 What is left: the join is 0.5–2° off (a yaw the table does not fix) and up to 9 mm sideways; the base test is a lower bound of the slide
 along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
@@ -532,53 +528,6 @@ def planar_register(P_W: np.ndarray, X: np.ndarray, Q_O: np.ndarray, N_O: np.nda
     S = make_X(np.array([[cs, -sn, 0.0], [sn, cs, 0.0], [0.0, 0.0, 1.0]]), np.zeros(3))
     S[:3, 3] = c - S[:3, :3] @ c + np.array([d[0], d[1], 0.0])
     return X_inv(S) @ X
-
-
-def edge_register(P_W: np.ndarray, X: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, pivot: np.ndarray,
-                  axis: np.ndarray, tree=None, iters: int = 12, dist0: float = 0.012, dist_min: float = 0.004,
-                  huber: float = 0.002, w_point: float = 0.05) -> np.ndarray:
-    """Pose X (4,4) of the model (Q_O, N_O (M,3)) refined by the frame's points P_W (N,3) in the motions of a body
-    tipping about an edge on the table: a turn about the line through ``pivot`` (3,) (a point of the edge, on the
-    table) along the unit ``axis`` (3,), the line moving with a horizontal shift (the edge slides on the table);
-    3 unknowns, the edge's height and direction stay. Robust point-to-plane residuals (Huber ``huber``) plus a small
-    point-to-point term ``w_point``, correspondences within a radius shrinking from ``dist0`` to ``dist_min``;
-    ``tree``: a KD-tree over Q_O (built when None). Returns the refined pose (4,4)."""
-    from scipy.spatial import cKDTree
-
-    if tree is None:
-        tree = cKDTree(Q_O)
-    a = np.asarray(axis, float) / np.linalg.norm(axis)
-    th, d = 0.0, np.zeros(3)
-
-    def moved(th: float, d: np.ndarray) -> np.ndarray:
-        R = so3_exp(th * a)
-        return make_X(R, pivot - R @ pivot + d) @ X
-
-    for k in range(iters):
-        rad = dist0 + (dist_min - dist0) * k / max(1, iters - 1)
-        Xc = moved(th, d)
-        R, t = Xc[:3, :3], Xc[:3, 3]
-        dist, j = tree.query((P_W - t) @ R, distance_upper_bound=rad)  # frame points in O
-        ok = np.isfinite(dist)
-        if ok.sum() < 10:
-            break
-        p, q, n = P_W[ok], Q_O[j[ok]] @ R.T + t, N_O[j[ok]] @ R.T  # in W
-        r = ((p - q) * n).sum(1)
-        w = np.where(np.abs(r) <= huber, 1.0, huber / np.maximum(np.abs(r), 1e-12))
-        dq = np.cross(a, q - pivot - d)  # motion of a model point per unit turn about the moved edge
-        J = -np.column_stack([(n * dq).sum(1), n[:, 0], n[:, 1]])
-        A = (J * w[:, None]).T @ J
-        g = (J * w[:, None]).T @ r
-        e = p - q  # point-to-point term
-        Jp = -np.stack([dq, np.tile([1.0, 0.0, 0.0], (len(q), 1)), np.tile([0.0, 1.0, 0.0], (len(q), 1))], 2)
-        A += w_point * np.einsum("kai,kaj->ij", Jp, Jp)
-        g += w_point * np.einsum("kai,ka->i", Jp, e)
-        step = -np.linalg.solve(A + 1e-9 * np.eye(3), g)
-        th += step[0]
-        d = d + np.array([step[1], step[2], 0.0])
-        if abs(step[0]) < 1e-6 and np.linalg.norm(step[1:]) < 1e-6:
-            break
-    return moved(th, d)
 
 
 def side_pose(X: np.ndarray, Q_O: np.ndarray, base_n_O: np.ndarray, tol: float = 0.01) -> tuple[np.ndarray, float]:

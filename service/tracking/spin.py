@@ -209,12 +209,10 @@ def spin_matrix(a: np.ndarray, c: np.ndarray, theta: float) -> np.ndarray:
 
 
 def interior_features(gray: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray, X_WC: np.ndarray,
-                      border_px: int, n_features: int, fit_px: int = 0) -> tuple[np.ndarray, np.ndarray | None]:
+                      border_px: int, n_features: int) -> tuple[np.ndarray, np.ndarray | None]:
     """ORB keypoints of a grey image (H,W) uint8 at least ``border_px`` inside the object mask (H,W) with valid depth
     (H,W) metres: (F,3) points in W and (F,32) descriptors (None when there are none). Detected on the crop around
-    the mask (same keypoints, less work). ``fit_px`` > 0: each keypoint's depth is the value at the keypoint of a
-    quadratic fitted to the mask's depth readings within ±fit_px pixels (``local_depth``) instead of its own pixel's
-    reading (kept where the fit has too few readings)."""
+    the mask (same keypoints, less work)."""
     import cv2
 
     m = mask.astype(np.uint8)
@@ -238,64 +236,8 @@ def interior_features(gray: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: 
     good = z > 0
     if not good.any():
         return np.zeros((0, 3)), None
-    if fit_px > 0:
-        z = z.astype(np.float64)
-        z[good] = local_depth(depth, mask, uv[good], fit_px, z[good])
     Pc = np.stack([(uv[good, 0] - K[0, 2]) / K[0, 0] * z[good], (uv[good, 1] - K[1, 2]) / K[1, 1] * z[good], z[good]], 1)
     return Pc @ X_WC[:3, :3].T + X_WC[:3, 3], des[good]
-
-
-# ---- keypoint depth from the frame's own depth around it (``spin_depth_fit_px``) ----------------------------------
-#
-# A vote's azimuth comes from the keypoint's 3-D point, lifted with the depth reading of its one pixel. That reading
-# carries the sensor's per-pixel noise (synthetic lab: σ = 0.8 + 1.8 z² mm, 80 % of its variance independent per
-# pixel, about 2 mm at 0.8 m); on a bottle (radius 20-34 mm where the keypoints are) seen at 40-60° from the normal
-# the point then moves along the surface by up to 2 sin α mm, 3-6° of azimuth per keypoint and more for the
-# difference of two frames, wider than the ±3° vote window. Between consecutive frames of a tilting development
-# bottle pivot (945, frames 160-180, true poses) the keypoints that mark the same surface point vote 0.0 ± 0.1°
-# when placed on the true surface but spread ±3° with their own depth, and the mode of that spread is pulled by the
-# keypoints whose 2-D position jumped with the changing view (their votes −14…+11°, mostly negative there): the
-# chain carried −0.3…−0.9° per frame through the tilt. The surface is smooth over a few pixels (its radius of
-# curvature ≥ 16 mm against ±7 mm for ±5 px at 0.8 m), so a quadratic in the pixel offsets fitted to the readings of
-# the mask around the keypoint (least squares, two passes dropping readings beyond 3 robust σ: flying pixels, a
-# fold) estimates the depth where the ray meets the surface with the independent part of the noise divided by
-# about √(n/6) (n ≈ 100 readings for ±5 px); the part correlated over tens of pixels (20 % of the variance) stays,
-# shared by neighbouring keypoints. Nothing but the frame's own depth is used: no model, no pose.
-# Off by default: development pivots 911, 945, 1064 gain, 1061-1063 lose 0.05-0.15° median, and the evaluation
-# bottle pivot 711 and bottle topple 704 lose (docs/tracking.md "Keypoint depth from the surface around it").
-
-def local_depth(depth: np.ndarray, mask: np.ndarray, uv: np.ndarray, w: int, z0: np.ndarray, min_px: int = 20
-                ) -> np.ndarray:
-    """(F,) metres: the depth at the sub-pixel points uv (F,2) (u, v) of a quadratic in the pixel offsets fitted to
-    the readings (H,W) metres (0: none) of the mask (H,W) within ±w pixels (two passes, readings beyond 3 robust σ
-    of the first fit dropped); z0 (F,) where fewer than ``min_px`` readings remain."""
-    H, W = depth.shape
-    off = np.arange(-w, w + 1)
-    dv, du = np.meshgrid(off, off, indexing="ij")
-    ui = np.round(uv[:, 0]).astype(int)
-    vi = np.round(uv[:, 1]).astype(int)
-    U = ui[:, None] + du.ravel()[None]  # (F, P) pixel columns of each window
-    V = vi[:, None] + dv.ravel()[None]
-    inside = (U >= 0) & (U < W) & (V >= 0) & (V < H)
-    Uc, Vc = np.clip(U, 0, W - 1), np.clip(V, 0, H - 1)
-    Z = depth[Vc, Uc].astype(np.float64)
-    ok = inside & (Z > 0) & mask[Vc, Uc].astype(bool)
-    x, y = U - uv[:, :1], V - uv[:, 1:]  # offsets from the sub-pixel point: the constant term is the depth there
-    A = np.stack([np.ones_like(x), x, y, x * x, x * y, y * y], -1)  # (F, P, 6)
-    z = np.asarray(z0, np.float64).copy()
-    keep = ok
-    for _ in range(2):
-        Wt = keep.astype(np.float64)
-        M = np.einsum("fpi,fp,fpj->fij", A, Wt, A) + 1e-9 * np.eye(6)
-        b = np.einsum("fpi,fp,fp->fi", A, Wt, Z)
-        c = np.linalg.solve(M, b[..., None])[..., 0]
-        r = Z - np.einsum("fpi,fi->fp", A, c)
-        s = 1.4826 * np.array([np.median(np.abs(rr[k])) if k.any() else 0.0 for rr, k in zip(r, keep)]) + 1e-4
-        keep = ok & (np.abs(r) < 3 * s[:, None])
-    n = keep.sum(1)
-    fit = n >= min_px
-    z[fit] = c[fit, 0]
-    return z
 
 
 def _cyl(P_O: np.ndarray, a: np.ndarray, c: np.ndarray, e1: np.ndarray, e2: np.ndarray
@@ -587,14 +529,12 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
                tau: float, tol: float, inlier_deg: float, min_votes: int, graph_votes: int, smooth: int, match,
                sep: float = 0.5, profile: str = "off", max_deg: float = 0.0, gate_deg: float = 10.0,
                n_short: int = 2, rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4,
-               fast_rate_deg: float = 2.0, fast_dilate: int = 4, fast_votes: int = 60, table_z: float | None = None,
-               roll: dict | None = None, parts: dict | None = None) -> SpinResult:
+               fast_rate_deg: float = 2.0, fast_dilate: int = 4, fast_votes: int = 60,
+               parts: dict | None = None) -> SpinResult:
     """Spin correction like ``spin_closure`` (same axis, cap, result): the chain, with the fast frames where it pooled
     fewer than ``fast_votes`` votes (``fast_frames``; widened) taking the increments of the pose graph
-    (``spin_links``, ``solve_spin_graph``; comment above). With ``table_z`` (the table's height in W) the frames
-    of confirmed rolling stretches take the roll's increments instead (``roll_spin``, ``roll_stretches``; ``roll``:
-    their keyword settings, keys of both). ``parts``: a dict that receives the intermediate results others reuse
-    (key "theta_g": the graph's solution (N,), when it was computed)."""
+    (``spin_links``, ``solve_spin_graph``; comment above). ``parts``: a dict that receives the intermediate results
+    others reuse (key "theta_g": the graph's solution (N,), when it was computed)."""
     n = len(X_WO)
     axis = find_axis(Q, N, tau, sep, profile)
     memo: dict = {}
@@ -609,155 +549,26 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
               sep=sep, profile=profile, max_deg=max_deg, axis=axis)
     fast = fast_frames(X_WO, fast_span, fast_rate_deg, fast_dilate)
     _, _, a, c = axis
-    rolling = np.zeros(n, bool)
-    if axis[0] and table_z is not None and revolution_axis(Q, N, tau, sep)[0]:  # not egg-like (comment above roll_spin)
-        rkw = dict(roll or {})
-        stretch_kw = {k: rkw.pop(k) for k in ("min_deg", "agree", "tol") if k in rkw}
-        rolling, phi, psi = roll_spin(X_WO, Q, a, c, table_z, **rkw)
-    if parts is not None:
-        parts["weak"] = np.zeros(n, bool)
-    if not axis[0] or (not fast[1:].any() and not rolling.any()):
+    if not axis[0] or not fast[1:].any():
         return spin_closure(feats, X_WO, Q, N, **kw)
     first = spin_closure(feats, X_WO, Q, N, **kw)
-    weak = widen(fast & (first.votes < fast_votes), fast_dilate) if fast[1:].any() else np.zeros(n, bool)
+    weak = widen(fast & (first.votes < fast_votes), fast_dilate)
     weak[0] = False
-    if rolling.any():
-        rolling = roll_stretches(first.theta, rolling, phi, psi, **stretch_kw)
-        rolling[0] = False
-    if parts is not None:
-        parts["weak"] = weak.copy()  # the frames that take the graph's increments (rolling ones aside)
-    if not weak.any() and not rolling.any():
+    if not weak.any():
         return first
-    theta_g = np.zeros(n)
-    if weak.any():
-        links = spin_links(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=graph_votes,
-                           match=match_once, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg,
-                           long_votes=long_votes)
-        theta_g = solve_spin_graph(n, links) if len(links) else np.zeros(n)
-        if parts is not None:
-            parts["theta_g"] = theta_g.copy()
-    if rolling.any():  # increments of the roll on its frames, of the graph on the other weak ones
-        inc = np.where(weak, np.r_[0.0, np.diff(theta_g)], 0.0)
-        inc[rolling] = np.r_[0.0, np.diff(phi - psi)][rolling]
-        theta_g = np.cumsum(inc)
-    return spin_closure(feats, X_WO, Q, N, fast=weak | rolling, theta_fast=theta_g, **kw)
-
-
-# ---- rolling constraint: the spin of a body of revolution rolling on the table (``spin_roll``) -------------------
-#
-# A body of revolution lying on the table with its axis a (in W) nearly horizontal that rolls without slipping has
-# its contact point at rest: with P the point of the axis above the contact, r the radius there and ω = ω_a a (+ a
-# turn about the vertical, which moves no point of the vertical through the contact), v_P + ω_a a × (−r ẑ) = 0, so
-# ω_a = v_P · (a × ẑ) / r. The tracked positions are accurate to millimetres while the texture follows only part of
-# a slow roll (development bottle topple 531, frames 195–225: the chain and graph see about 60 % of it), so the roll
-# angle φ(t) = ∫ v_P · u / r dt (u = a × ẑ normalised) is a measurement of the spin. Per frame: the model's lowest
-# point (in W) gives the contact; frames with the axis within ``tilt_deg`` of horizontal and the lowest point within
-# ``margin`` of the table are candidates; P is the axis point at the median height (along a) of the candidates'
-# contacts and r the median radius of the model there (a fixed point: the contact moves between the ends of a bottle's
-# body from frame to frame). φ is median-filtered over 5 frames; rolling frames are candidates whose φ changes by
-# more than ``rate_deg`` per frame over ``window`` frames, in stretches of at least ``min_frames``. Over such a
-# stretch the spin correction follows φ − ψ (ψ: the tracked rotation about a, accumulated frame to frame). A body
-# that slides instead of rolling turns less than φ says: a stretch is used only when its roll is at least ``min_deg``
-# and the texture (ψ plus the chain's correction over the stretch) turned the same way by at least ``agree`` of it.
-# The roll is itself off by 5-13 % on the development bottles (the model's radius near the contact is noisy): where
-# the texture is within ``tol`` of it, the texture is kept. Egg-like bodies (no single weak rotation: the eigen-axis
-# fails the separation test of ``revolution_axis``) are left out: the radius at their contact changes as they roll
-# and they roll along curves (development eggs 512, 522: the roll off by −25…+40 % of the true spin change).
-# Off by default (``spin_roll``): the lab's pushed bottles roll with slip either way, by up to 50 % of the roll on the
-# evaluation bottle 704, where the texture was right and the roll made the frames after the roll 19-28° off
-# (docs/tracking.md, "Rolling constraint").
-
-
-def roll_spin(X_WO: np.ndarray, Q: np.ndarray, a: np.ndarray, c: np.ndarray, table_z: float, *,
-              tilt_deg: float = 10.0, margin: float = 0.015, rate_deg: float = 1.0, window: int = 8,
-              min_frames: int = 6, radius: str = "contact") -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(rolling (N,) bool, φ (N,) rad roll angle, ψ (N,) rad tracked spin) of the poses X_WO (N,4,4) of a body of
-    revolution with model points Q (M,3) and axis (a, c) in O on a table at height table_z (comment above).
-    ``radius``: "contact", the model's median radius at the contacts' median height, candidates from the model's
-    lowest point; "widest", the surface of revolution instead of the model's points: the median radius r of the
-    profile's widest stretch (``lying.straight_stretch`` about (a, c): the generator a lying body rests on), P the
-    axis point nearest the model's centroid, and a frame a candidate when P's height less r cos(elevation) is within
-    ``margin`` of the table (a model seen from one side has no points near the contact)."""
-    from scipy.ndimage import median_filter
-
-    from service.transforms import so3_log
-
-    n = len(X_WO)
-    R, t = X_WO[:, :3, :3], X_WO[:, :3, 3]
-    d = Q - c
-    hgt = d @ a
-    rad = np.linalg.norm(d - np.outer(hgt, a), axis=1)
-    aW = R @ a
-    el = np.arcsin(np.clip(np.abs(aW[:, 2]), 0, 1))
-    rolling = np.zeros(n, bool)
-    phi = np.zeros(n)
-    psi = np.r_[0.0, np.cumsum([so3_log(R[i - 1].T @ R[i]) @ a for i in range(1, n)])]
-    if radius == "widest":  # the body rests on its widest straight stretch (service.tracking.lying)
-        from service.tracking.lying import straight_stretch
-
-        r = straight_stretch(Q, a, c)[2]
-        H = float((Q.mean(0) - c) @ a)
-        Pz = R[:, 2, :] @ (c + H * a) + t[:, 2]
-        cand = (np.degrees(el) < tilt_deg) & (Pz - r * np.cos(el) - table_z < margin)
-        if cand.sum() < min_frames:
-            return rolling, phi, psi
-    else:
-        zW = np.einsum("mj,nj->nm", Q, R[:, 2, :]) + t[:, 2:3]  # (N,M) heights of the model points in W
-        zmin = zW.min(1)
-        low = zW < zmin[:, None] + 0.003
-        cand = (np.degrees(el) < tilt_deg) & (zmin - table_z < margin)
-        if cand.sum() < min_frames:
-            return rolling, phi, psi
-        H = float(np.median([np.median(hgt[low[i]]) for i in np.nonzero(cand)[0]]))
-        near = np.abs(hgt - H) < 0.005
-        r = float(np.median(rad[near])) if near.any() else float(np.median(rad))
-    if r < 1e-3:
-        return rolling, phi, psi
-    P = R @ (c + H * a) + t
-    u = np.cross(aW, [0.0, 0.0, 1.0])
-    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-9)
-    dP = np.diff(P, axis=0)
-    dP[:, 2] = 0.0
-    inc = np.einsum("ij,ij->i", dP, 0.5 * (u[1:] + u[:-1])) / r
-    inc[~(cand[1:] & cand[:-1])] = 0.0
-    phi = median_filter(np.r_[0.0, np.cumsum(inc)], size=5, mode="nearest")
-    k = np.arange(n)
-    hi, lo = np.minimum(k + window // 2, n - 1), np.maximum(k - window // 2, 0)
-    fast = np.abs(phi[hi] - phi[lo]) > np.radians(rate_deg) * np.maximum(hi - lo, 1)
-    rolling = fast & cand
-    for s, e in runs(rolling):
-        if e - s < min_frames:
-            rolling[s:e] = False
-    return rolling, phi, psi
+    links = spin_links(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=graph_votes,
+                       match=match_once, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg,
+                       long_votes=long_votes)
+    theta_g = solve_spin_graph(n, links) if len(links) else np.zeros(n)
+    if parts is not None:
+        parts["theta_g"] = theta_g.copy()
+    return spin_closure(feats, X_WO, Q, N, fast=weak, theta_fast=theta_g, **kw)
 
 
 def runs(f: np.ndarray) -> list[tuple[int, int]]:
     """[start, end) of the runs of True in f (N,) bool."""
     d = np.diff(np.r_[0, f.astype(int), 0])
     return list(zip(np.nonzero(d == 1)[0], np.nonzero(d == -1)[0]))
-
-
-def roll_stretches(first_theta: np.ndarray, rolling: np.ndarray, phi: np.ndarray, psi: np.ndarray, *,
-                   min_deg: float = 10.0, agree: float = 0.3, tol: float = 0.2, votes: np.ndarray | None = None,
-                   strong: float = 60.0) -> np.ndarray:
-    """(N,) bool: the rolling frames of the stretches the texture confirms but lags (comment above ``roll_spin``):
-    roll |Δφ| ≥ min_deg and the texture's spin change Δτ = Δψ + Δθ (θ = first_theta, the chain's correction; taken
-    from the frame before the stretch to its last frame) of the same sign with agree |Δφ| ≤ Δτ sgn Δφ < (1 − tol)
-    |Δφ| (a texture within ``tol`` of the roll is kept: the roll's own error, mostly the model's contact radius, is
-    about that large). With ``votes`` (N,) (the chain's vote counts per frame, 0 where a frame has no texture
-    estimate of its own) a stretch whose mean count is at least ``strong`` keeps the texture: the roll replaces the
-    texture only where it is weak."""
-    out = np.zeros(len(rolling), bool)
-    for s, e in runs(rolling):
-        if votes is not None and np.mean(votes[s:e]) >= strong:
-            continue
-        s0 = max(s - 1, 0)
-        droll = phi[e - 1] - phi[s0]
-        dtex = psi[e - 1] - psi[s0] + first_theta[e - 1] - first_theta[s0]
-        seen = dtex * np.sign(droll)
-        if abs(droll) >= np.radians(min_deg) and agree * abs(droll) <= seen < (1.0 - tol) * abs(droll):
-            out[s:e] = True
-    return out
 
 
 # ---- the body's twist smoothed instead of the correction (``spin_twist_smooth``) --------------------------------

@@ -31,8 +31,6 @@ adopted too (``resettle_rest_deg``, off), and fall frames off the turn about the
 pose their points fit (``resettle_path``, off). After the gauge, the settled stretch of every landing checked is laid
 flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
 registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
-Then the fall's frames of every landing checked may be registered again in the turns about the leading bottom edge
-with the edge sliding on the table (``resettle_edge``, off).
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
 normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
 or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
@@ -215,8 +213,7 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
 
         if gray is None:
             gray = cv2.cvtColor(session.rgb(i), cv2.COLOR_RGB2GRAY)
-        spin_feats = interior_features(gray, depth, mask, K, X_WC,
-                                       cfg.spin_border_px, cfg.spin_features, cfg.spin_depth_fit_px)
+        spin_feats = interior_features(gray, depth, mask, K, X_WC, cfg.spin_border_px, cfg.spin_features)
     return FrameObs(P_W, N_W, kp_W, desc, n_mask, C, spin_feats)
 
 
@@ -587,12 +584,10 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         if cfg.resettle_flush_deg > 0 and landings:  # the settled stretch flush with the table, re-registered (after the
             # gauge: the base the object stood on is -z in the final O)
             model = _resettle_flush(session, obs, X, tracked, frac, rmse, keyframes, carver, landings, cfg) or model
-        if cfg.resettle_edge and landings:  # the fall's frames in the turns about the leading bottom edge
-            _resettle_edge(session, obs, X, tracked, frac, rmse, model, keyframes, landings, cfg)
     spin = tilt = None
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
-        spin = _spin_closure(obs, X, model, cfg, session.table_height if cfg.spin_roll else None)
+        spin = _spin_closure(obs, X, model, cfg)
         if cfg.spin_tilt:
             tilt = _spin_tilt(obs, X, model, spin, cfg)
         if cfg.lie_level:  # a lying body of revolution: axis parallel to the table (service.tracking.lying)
@@ -833,69 +828,6 @@ def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndar
     return out
 
 
-def _resettle_edge(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
-                   rmse: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], landings: list,
-                   cfg: TrackingConfig) -> list[tuple[int, bool]]:
-    """The fall's frames of every topple landing checked (adopted or not; after the settled stretch is laid flush,
-    ``_resettle_flush``) registered in the motions of a body tipping about its leading bottom edge on the table:
-    between the last tracked frame a before the fall and the settled frame i the object turns about that edge
-    (``resettle.leading_pivot``: the base of frame 0's footprint placed at X[a], at its extent along the tipping
-    direction, on the table; axis: that of the rotation X[a] → X[i]) while the edge may slide on the table. Each frame
-    a < j < i is registered by ``resettle.edge_register`` (the turn about the edge and the edge's horizontal shift)
-    from the ``resettle_edge_starts`` poses of the turn (``resettle.tip_path``, every ``resettle_path_step_deg``) its
-    points fit best (inlier fraction, then mean distance capped at 2 cm); the best fit among the results consistent
-    with the table and the frame's own free space (``resettle.pose_consistent``) replaces the frame's pose when the
-    pose is lost or inconsistent, or when the fit's inlier fraction is at most ``resettle_edge_tol`` below the pose's
-    and its points lie no farther from the model on average (mean distance capped at 2 cm).
-    A body with neither a flat side nor a flat face where it lies (the test of ``_resettle_flush``: an egg) is left as
-    it is. Updates X, tracked, frac, rmse in place (X_WO in W, m); returns per frame looked at (index, replaced)."""
-    from service.tracking.geometry import icp_result
-    from service.tracking.resettle import edge_register, path_keys, rests_flat
-
-    Q = model.Q[:: max(1, len(model.Q) // 4000)]
-    base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
-    out = []
-    for ld in landings:
-        i = ld.i
-        before = [j for j in range(ld.g0) if tracked[j]]
-        pre = [kf for kf in keyframes if kf.index < ld.g0]
-        if not before or not pre or not tracked[i]:
-            continue
-        M = _model_from(pre, cfg.model_voxel)
-        down = X[i][:3, :3].T @ np.array([0.0, 0.0, -1.0])
-        if not rests_flat(M.Q, M.N, base_n, down):
-            continue  # a curved body (an egg) has no edge to tip about (the test of _resettle_flush)
-        a = before[-1]
-        tip = _tip_poses(session, X, a, i, pre, cfg)
-        if tip is None:
-            continue
-        pivot, poses = tip
-        w = so3_log(X[i][:3, :3] @ X[a][:3, :3].T)
-        axis = w / np.linalg.norm(w)
-        for j in range(a + 1, i):
-            o = obs[j]
-            if len(o.P_W) < cfg.min_points:
-                continue
-            ok = _consistent_in(session, j, Q, cfg)
-            keys = path_keys(o.P_W, poses, model.tree, cfg.inlier_dist)
-            best = None
-            for k in sorted(range(len(poses)), key=lambda k: keys[k], reverse=True)[: cfg.resettle_edge_starts]:
-                Xe = edge_register(o.P_W, poses[k], model.Q, model.N, pivot, axis, model.tree)
-                if ok(Xe):
-                    ke = path_keys(o.P_W, [Xe], model.tree, cfg.inlier_dist)[0]
-                    if best is None or ke > best[1]:
-                        best = (Xe, ke)
-            cur = path_keys(o.P_W, [X[j]], model.tree, cfg.inlier_dist)[0]
-            take = best is not None and (not (tracked[j] and ok(X[j])) or (best[1][0] >= cur[0] - cfg.resettle_edge_tol
-                                                                           and best[1][1] >= cur[1]))
-            if take:
-                r = icp_result(X_inv(best[0]), o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist)
-                X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse
-                tracked[j] = _good(r, cfg)
-            out.append((j, bool(take)))
-    return out
-
-
 def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
                     rmse: np.ndarray, keyframes: list[Keyframe], carver: "FreeSpace | None", landings: list,
                     cfg: TrackingConfig) -> ObjectModel | None:
@@ -995,11 +927,9 @@ def _spin_tau(model: ObjectModel, cfg: TrackingConfig) -> float:
     return cfg.spin_tau
 
 
-def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig,
-                  table_z: float | None = None) -> "SpinResult":
+def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig) -> "SpinResult":
     """Re-estimate the spin about the symmetry axis of a body of revolution (``service.tracking.spin``) and apply
-    it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture.
-    ``table_z``: the table's height, given when the rolling constraint is on (``cfg.spin_roll``)."""
+    it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture."""
     from service.tracking.spin import apply_spin, spin_closure
 
     empty = (np.zeros((0, 3)), None)
@@ -1010,8 +940,8 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
     common["tau"] = _spin_tau(model, cfg)
     graph = dict(gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
                  long_votes=cfg.spin_graph_long_votes)
-    if cfg.spin_fall and cfg.spin_solver == "mixed":  # the mixed estimate, no spin in topples (+ the roll)
-        res = _spin_fall(feats, X, model, cfg, common, graph, table_z)
+    if cfg.spin_fall and cfg.spin_solver == "mixed":  # the mixed estimate, no spin in topples
+        res = _spin_fall(feats, X, model, cfg, common, graph)
     elif cfg.spin_solver == "graph":  # joint estimate over frame pairs (spin.spin_graph)
         from service.tracking.spin import spin_graph
 
@@ -1021,8 +951,7 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
 
         res = spin_mixed(feats, X, model.Q, model.N, min_votes=cfg.spin_min_votes, graph_votes=cfg.spin_graph_votes,
                          fast_span=cfg.spin_mixed_span, fast_rate_deg=cfg.spin_mixed_rate_deg,
-                         fast_dilate=cfg.spin_mixed_dilate, fast_votes=cfg.spin_mixed_votes, table_z=table_z,
-                         roll=_roll_kw(cfg), **common, **graph)
+                         fast_dilate=cfg.spin_mixed_dilate, fast_votes=cfg.spin_mixed_votes, **common, **graph)
     else:  # the per-frame chain (spin.spin_closure)
         res = spin_closure(feats, X, model.Q, model.N, min_votes=cfg.spin_min_votes, **common)
     if cfg.spin_twist_smooth > 1:  # the body's twist median-filtered instead of the correction (spin.smooth_twist)
@@ -1066,27 +995,17 @@ def _spin_tilt(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, spin: "Sp
     return res
 
 
-def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, common: dict, graph: dict,
-               table_z: float | None = None):
+def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, common: dict, graph: dict):
     """``fall.spin_fall`` with the tracker's settings: the mixed spin estimate, with no spin about the axis over the
-    topples where the texture lagged (service/tracking/fall.py); with ``table_z`` (``cfg.spin_roll``) the rolling
-    stretches after them take the roll's spin where the texture lags it (``fall.with_roll``)."""
+    topples where the texture lagged (service/tracking/fall.py)."""
     from service.tracking.fall import spin_fall
 
     res, _ = spin_fall(feats, X, model.Q, model.N, min_votes=cfg.spin_min_votes, graph_votes=cfg.spin_graph_votes,
                        fast_span=cfg.spin_mixed_span, fast_rate_deg=cfg.spin_mixed_rate_deg,
                        fast_dilate=cfg.spin_mixed_dilate, fast_votes=cfg.spin_mixed_votes,
                        fall_rate_deg=cfg.spin_fall_rate_deg, fall_min_deg=cfg.spin_fall_min_deg,
-                       fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg,
-                       twist_axis=cfg.spin_fall_axis, table_z=table_z,
-                       roll={**_roll_kw(cfg), "strong": cfg.spin_roll_votes}, **common, **graph)
+                       fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg, **common, **graph)
     return res
-
-
-def _roll_kw(cfg: TrackingConfig) -> dict:
-    """The rolling constraint's settings (``spin.roll_spin`` and ``spin.roll_stretches`` keywords)."""
-    return dict(tilt_deg=cfg.spin_roll_tilt_deg, rate_deg=cfg.spin_roll_rate_deg, agree=cfg.spin_roll_agree,
-                tol=cfg.spin_roll_tol, radius=cfg.spin_roll_radius)
 
 
 def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], carver: "FreeSpace | None",

@@ -293,25 +293,6 @@ class TrackingConfig:
     mask_trim_iters: int = 3
     mask_trim_deep_px: int = 3
     mask_trim_min: float = 0.01
-    # rolling constraint (spin_solver "mixed"; spin.roll_spin): a body of revolution lying on the table (axis within
-    # spin_roll_tilt_deg of horizontal) that rolls (roll angle from the tracked translation over the contact radius
-    # changing faster than spin_roll_rate_deg per frame) takes the roll's spin over the stretch when the texture
-    # turned the same way by at least spin_roll_agree of it (a sliding body does not) and lags the roll by more than
-    # spin_roll_tol of it; off: the roll is off by up to 50 % where the pushed bottle slips (evaluation 704:
-    # worst frame 7.9° -> 28.7°; with spin_fall, fall.with_roll: 8.58° -> 19.41°); docs/tracking.md "Rolling
-    # constraint", "The roll after the landing"
-    spin_roll: bool = False
-    spin_roll_tilt_deg: float = 10.0
-    spin_roll_rate_deg: float = 1.0
-    spin_roll_agree: float = 0.3
-    spin_roll_tol: float = 0.2  # a texture within this fraction of the roll is kept (the roll's own error)
-    # the contact radius of the roll: "contact" (the model's median radius at the contacts' median height) or
-    # "widest" (the radius of the profile's widest straight stretch, the generator a lying body rests on)
-    spin_roll_radius: str = "contact"
-    # with spin_fall: a rolling stretch whose chain pooled at least this many texture votes per frame on average keeps
-    # the texture (the roll only where the texture is weak, as the mixed estimate's spin_mixed_votes); None: the
-    # guard above alone
-    spin_roll_votes: float | None = 60.0
     # the settled object after a topple's landing (service.tracking.resettle; docs/tracking.md "Settled object joined
     # by the fall's physics"): resettle_delay frames after the last fast step of the loop (> settle_fast_deg per
     # frame), when the steps from resettle_tip_deg per frame on turned >= resettle_min_tip_deg about a horizontal
@@ -359,27 +340,17 @@ class TrackingConfig:
     # correction median-filtered over spin_smooth as before (docs/tracking.md "Twist smoothed instead of the correction";
     # development bottle pivots 911 7.05° -> 4.17°, 553 7.08° -> 3.53° worst frame)
     spin_twist_smooth: int = 15
-    # spin closure (spin.local_depth): each interior keypoint's depth taken from a quadratic fitted to the mask's depth
-    # readings within ±spin_depth_fit_px pixels instead of its one pixel's reading (per-pixel noise of 2 mm moves a
-    # keypoint on a curved surface seen obliquely by 3-6° of azimuth); 0: the pixel's reading (docs/tracking.md
-    # "Keypoint depth from the surface around it": ±5 px gains on development pivots 911 and 945 (worst frame 5.53° ->
-    # 4.16°), loses 0.05-0.15° median on 1061-1063, and evaluation 711 goes 1.11° / 6.26° -> 1.25° / 6.51°: off)
-    spin_depth_fit_px: int = 0
     # a body of revolution does not turn about its own axis while it topples (service.tracking.fall: no force on it
     # has a moment about the axis): over a topple of the tracked poses (the axis' angle from the vertical changing by
     # more than spin_fall_rate_deg per frame and by >= spin_fall_min_deg in all, trimmed by spin_fall_edge_deg at
     # both ends) the spin correction takes the increments that leave the tracked rotation no twist about the axis,
     # when the default estimate's spin change over it differs from theirs by more than spin_fall_tol_deg (spin_solver
-    # "mixed" only; with spin_roll the rolling stretches after it take the roll where the texture is weak,
-    # fall.with_roll); docs/tracking.md "Fall without spin", "The roll after the landing"
+    # "mixed" only); docs/tracking.md "Fall without spin"
     spin_fall: bool = True  # on: evaluation 704 5.21 -> 2.08 deg median rotation (worst 7.86 -> 9.73), others identical
     spin_fall_rate_deg: float = 0.4
     spin_fall_min_deg: float = 45.0
     spin_fall_edge_deg: float = 1.0
     spin_fall_tol_deg: float = 3.0
-    # the axis of the no-twist increments: "found" (the spin closure's axis) or "vertical" (the vertical of frame 0
-    # when the found axis is within 15° of it: the body stood on its base; fall.standing_axis)
-    spin_fall_axis: str = "found"  # "vertical": development 881 10.56 -> 2.71 deg median, evaluation 704 worse
     # the fall's frames of an adopted join checked against the tipping motion (tracker._resettle_path,
     # resettle.tip_path): a frame lost, inconsistent, or more than resettle_path_deg / resettle_path_dist from the
     # turn about the leading bottom edge between the last pose before the fall and the join takes the path's pose
@@ -388,16 +359,6 @@ class TrackingConfig:
     resettle_path_deg: float = 5.0
     resettle_path_dist: float = 0.02
     resettle_path_step_deg: float = 1.0
-    # the fall's frames of every landing checked (adopted or not) registered again after the settled stretch is laid
-    # flush (tracker._resettle_edge, resettle.edge_register): in the motions of a body tipping about its leading
-    # bottom edge on the table (a turn about the edge, the edge sliding on the table; 3 unknowns instead of 6), started
-    # from the resettle_edge_starts poses of the turn from the last pose before the fall to the settled pose (every
-    # resettle_path_step_deg) the frame's points fit best; the best fit consistent with the table and the frame's
-    # free space replaces the frame's pose when its inlier fraction is at most resettle_edge_tol below the pose's and its
-    # mean distance is not larger (docs/tracking.md "Fall frames in the turns about the leading edge")
-    resettle_edge: bool = False  # on: development 820 worst 22.3 -> 3.2 deg, 1043 3.9 -> 5.5 deg; evaluation 703 3.06 -> 4.59 deg, 710 6.30 deg kept
-    resettle_edge_tol: float = 0.02
-    resettle_edge_starts: int = 3
     # the leading face made perpendicular to the base the object stood on at frame 0 when its fitted normal is within
     # resettle_square_deg of that (resettle.landing_pose; 0: off)
     resettle_square_deg: float = 0.0  # 5: development 820 join 1.42 -> 0.55 deg, median 1.99 -> 1.26 deg
@@ -483,8 +444,6 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_mixed_dilate must be >= 0, not {self.spin_mixed_dilate!r}")
         if not (isinstance(self.spin_twist_smooth, int) and self.spin_twist_smooth >= 0):
             raise ValueError(f"TrackingConfig.spin_twist_smooth must be an int >= 0, not {self.spin_twist_smooth!r}")
-        if not (isinstance(self.spin_depth_fit_px, int) and self.spin_depth_fit_px >= 0):
-            raise ValueError(f"TrackingConfig.spin_depth_fit_px must be an int >= 0, not {self.spin_depth_fit_px!r}")
         for name in ("spin_graph_gate_deg", "spin_graph_rate_deg"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
@@ -514,21 +473,6 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.mask_trim_min must be in [0, 1], not {self.mask_trim_min!r}")
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
-        if self.spin_roll and self.spin_solver != "mixed":
-            raise ValueError(f"TrackingConfig.spin_roll needs spin_solver 'mixed', not {self.spin_solver!r}")
-        if not 0 < self.spin_roll_tilt_deg < 90:
-            raise ValueError(f"TrackingConfig.spin_roll_tilt_deg must be in (0, 90), not {self.spin_roll_tilt_deg!r}")
-        if not self.spin_roll_rate_deg > 0:
-            raise ValueError(f"TrackingConfig.spin_roll_rate_deg must be > 0, not {self.spin_roll_rate_deg!r}")
-        if not 0 <= self.spin_roll_agree <= 1:
-            raise ValueError(f"TrackingConfig.spin_roll_agree must be in [0, 1], not {self.spin_roll_agree!r}")
-        if not 0 <= self.spin_roll_tol < 1:
-            raise ValueError(f"TrackingConfig.spin_roll_tol must be in [0, 1), not {self.spin_roll_tol!r}")
-        if self.spin_roll_votes is not None and not self.spin_roll_votes > 0:
-            raise ValueError(f"TrackingConfig.spin_roll_votes must be None or > 0, not {self.spin_roll_votes!r}")
-        if self.spin_roll_radius not in ("contact", "widest"):
-            raise ValueError(f"TrackingConfig.spin_roll_radius must be 'contact' or 'widest', not "
-                             f"{self.spin_roll_radius!r}")
         for name in ("resettle_tip_deg", "resettle_min_tip_deg", "resettle_min_deg", "resettle_min_dist",
                      "resettle_max_shift", "resettle_max_yaw_deg", "resettle_seen"):
             if not getattr(self, name) >= 0:
@@ -543,10 +487,6 @@ class TrackingConfig:
         for name in ("resettle_flush_deg", "resettle_flush_square_deg"):
             if not 0.0 <= getattr(self, name) < 90.0:
                 raise ValueError(f"TrackingConfig.{name} must be in [0, 90), not {getattr(self, name)!r}")
-        if not (0.0 <= self.resettle_edge_tol < 1.0 and isinstance(self.resettle_edge_starts, int)
-                and self.resettle_edge_starts >= 1):
-            raise ValueError(f"TrackingConfig.resettle_edge_tol must be in [0, 1) and resettle_edge_starts an int >= 1, "
-                             f"not {self.resettle_edge_tol!r}, {self.resettle_edge_starts!r}")
         for name in ("resettle_path_deg", "resettle_path_dist", "resettle_path_step_deg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, not {getattr(self, name)!r}")
@@ -562,9 +502,6 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not 0 < self.spin_fall_min_deg <= 90:
             raise ValueError(f"TrackingConfig.spin_fall_min_deg must be in (0, 90], not {self.spin_fall_min_deg!r}")
-        if self.spin_fall_axis not in ("found", "vertical"):
-            raise ValueError(f"TrackingConfig.spin_fall_axis must be 'found' or 'vertical', not "
-                             f"{self.spin_fall_axis!r}")
         for name in ("lie_level_stand_deg", "lie_level_deg", "lie_level_max_deg"):
             if not 0 < getattr(self, name) < 90:
                 raise ValueError(f"TrackingConfig.{name} must be in (0, 90), not {getattr(self, name)!r}")

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from service.tracking.resettle import (base_points, base_shift, edge_register, face_offsets, find_fall, landing_pose,
-                                      leading_pivot, path_distance, path_fit, path_keys, pose_consistent, reach_along,
+from service.tracking.resettle import (base_points, base_shift, face_offsets, find_fall, landing_pose,
+                                      leading_pivot, path_distance, path_fit, pose_consistent, reach_along,
                                       rest_offsets, tip_path)
 from service.transforms import X_inv, make_X, pose_distance, se3_exp, se3_log, so3_exp
 
@@ -308,46 +308,3 @@ def test_no_flush_face_on_a_curved_body():
     Q, Nb = box_faces(step=0.004)
     assert has_flat_side(Q, Nb, np.array([0.0, 0.0, -1.0]))
     assert landed_face(Q, Nb, settled_truth(make_X(np.eye(3), np.array([0.5, 0.0, SIZE[2] / 2])), 0.0), 0.0) is not None
-
-
-def _edge_tipped(X_r: np.ndarray, pivot: np.ndarray, deg: float, slide: np.ndarray) -> np.ndarray:
-    """The standing box X_r turned by ``deg`` about the bottom edge through ``pivot`` along −x, then slid."""
-    R = so3_exp(np.array([-1.0, 0.0, 0.0]) * np.radians(deg))
-    return make_X(R @ X_r[:3, :3], pivot + R @ (X_r[:3, 3] - pivot) + slide)
-
-
-def test_edge_register_finds_the_turn_and_the_slide_from_a_seen_side():
-    from scipy.spatial import cKDTree
-
-    table = 0.0
-    X_r = make_X(np.eye(3), np.array([0.4, 0.1, table + SIZE[2] / 2]))
-    pivot = np.array([0.4, 0.1 + SIZE[1] / 2, table])
-    truth = _edge_tipped(X_r, pivot, 35.0, np.array([0.003, 0.008, 0.0]))  # 35° into the fall, the edge slid 8.5 mm
-    Q, Nq = box_faces()
-    QW, NW = Q @ truth[:3, :3].T + truth[:3, 3], Nq @ truth[:3, :3].T
-    seen = ((np.array([1.0, -0.5, 0.5]) - QW) * NW).sum(1) > 0  # the faces a camera at (1, -0.5, 0.5) sees
-    rng = np.random.default_rng(1)
-    P_W = QW[seen][rng.choice(seen.sum(), 300, replace=False)] + rng.normal(0.0, 0.001, (300, 3))
-    start = _edge_tipped(X_r, pivot, 30.0, np.zeros(3))  # the pose of the turn without slide, 5° short
-    X = edge_register(P_W, start, Q, Nq, pivot, np.array([-1.0, 0.0, 0.0]), cKDTree(Q))
-    dt, da = pose_distance(X, truth)
-    assert da < 0.5 and dt < 0.001
-    # the edge stays on the table and keeps its direction: the motion is a turn about x and a horizontal shift
-    D = X @ X_inv(start)
-    assert abs(D[0, 1]) < 1e-9 and abs(D[0, 2]) < 1e-9
-    moved = D[:3, :3] @ pivot + D[:3, 3]
-    assert abs(moved[2] - table) < 1e-9
-    k_fit = path_keys(P_W, [X, start], cKDTree(Q), 0.004)
-    assert k_fit[0] > k_fit[1] and k_fit[0][0] > 0.9
-
-
-def test_edge_settings_validated():
-    import pytest
-
-    from service.tracking.types import TrackingConfig
-
-    assert TrackingConfig().resettle_edge is False
-    with pytest.raises(ValueError):
-        TrackingConfig(resettle_edge_tol=-0.1)
-    with pytest.raises(ValueError):
-        TrackingConfig(resettle_edge_starts=0)
