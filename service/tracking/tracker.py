@@ -27,8 +27,7 @@ replaces a track far from it a few frames after the landing, the settled frame a
 (``service.tracking.resettle``); after the loop the join moves along the tipping direction until the object's base
 is no longer where the settled frames see the table (``resettle_refine_frames``); the leading face is made square to
 the base the object stood on (``resettle_square_deg``, off), a join near a track that does not rest on the table is
-adopted too (``resettle_rest_deg``, off), and fall frames off the turn about the leading bottom edge take the path
-pose their points fit (``resettle_path``, off). After the gauge, the settled stretch of every landing checked is laid
+adopted too (``resettle_rest_deg``, off). After the gauge, the settled stretch of every landing checked is laid
 flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
 registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
@@ -570,8 +569,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 _report(progress, 0.62 + 0.18 * i / N, f"final registration {i}/{N}")
         if cfg.final_neighbors:
             _final_from_neighbors(session, obs, X, tracked, frac, rmse, model, cfg, icp_kw)
-        if cfg.resettle_path and any(ld.adopted for ld in landings):  # fall frames off the tipping path
-            _resettle_path(session, obs, X, tracked, frac, rmse, model, keyframes, landings, cfg)
         if cfg.regauge_frame0:
             from dataclasses import replace as _replace
 
@@ -758,74 +755,6 @@ def _resettle_refine(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
                 _place_keyframe(kf, T @ kf.X_WO, carver)
         moved = True
     return _model_from(keyframes, cfg.model_voxel) if moved else None
-
-
-def _tip_poses(session, X: np.ndarray, a: int, i: int, pre: list[Keyframe],
-               cfg: TrackingConfig) -> tuple[np.ndarray, list[np.ndarray]] | None:
-    """The tipping motion between the last tracked frame a before a fall and the settled frame i: the leading bottom
-    edge's point (``resettle.leading_pivot``, in W, m: the base of frame 0's footprint placed at X[a], at its extent
-    along the tipping direction, on the table) and the poses X_WO of the turn X[a] → X[i] about it
-    (``resettle.tip_path``, every ``resettle_path_step_deg``); None when ``_fall_base`` finds no tipping direction."""
-    from service.tracking.resettle import leading_pivot, tip_path
-
-    fall = _fall_base(session, X[a], X[i], X[0], pre, cfg)
-    if fall is None:
-        return None
-    f, turn, B = fall
-    pivot = leading_pivot(B @ X[a][:3, :3].T + X[a][:3, 3], f, session.table_height)
-    path = tip_path(X[a], X[i], pivot)
-    n = max(2, int(np.ceil(np.degrees(turn) / cfg.resettle_path_step_deg)))
-    return pivot, [path(k / n) for k in range(n + 1)]
-
-
-def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
-                   rmse: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], landings: list,
-                   cfg: TrackingConfig) -> list[tuple[int, float, float, bool]]:
-    """The fall's frames of every adopted topple join checked against the tipping motion the physics implies
-    (``resettle.tip_path``): between the last tracked frame a before the fall and the settled frame i the object
-    turns about its leading bottom edge (``resettle.leading_pivot``: the base of frame 0's footprint, placed at X[a],
-    at its extent along the tipping direction, on the table). A frame whose pose is lost, inconsistent with the table
-    or its own free space (``resettle.pose_consistent``), or more than ``resettle_path_deg`` / ``resettle_path_dist``
-    from the nearest pose of the path takes the path's pose (every ``resettle_path_step_deg`` of the turn) that its
-    points fit best among the consistent ones (``resettle.path_fit``); it counts as tracked when that pose is a good
-    registration (inlier fraction, residual). Updates X, tracked, frac, rmse in place; returns per checked frame
-    (index, rotation and translation from the path, replaced)."""
-    from service.tracking.geometry import icp_result
-    from service.tracking.resettle import path_distance, path_fit
-
-    Q = model.Q[:: max(1, len(model.Q) // 4000)]
-    out = []
-    for ld in landings:
-        if not ld.adopted:
-            continue
-        i = ld.i
-        before = [j for j in range(ld.g0) if tracked[j]]
-        pre = [kf for kf in keyframes if kf.index < ld.g0]
-        if not before or not pre or not tracked[i]:
-            continue
-        a = before[-1]
-        tip = _tip_poses(session, X, a, i, pre, cfg)
-        if tip is None:
-            continue
-        _, poses = tip
-        for j in range(a + 1, i):
-            o = obs[j]
-            if len(o.P_W) < cfg.min_points:
-                continue
-            ok = _consistent_in(session, j, Q, cfg)
-            d_rot, d_t, _ = path_distance(X[j], poses)
-            if tracked[j] and d_rot <= cfg.resettle_path_deg and d_t <= cfg.resettle_path_dist and ok(X[j]):
-                out.append((j, d_rot, d_t, False))
-                continue
-            fit = path_fit(o.P_W, poses, model.tree, cfg.inlier_dist, ok)
-            if fit is None:
-                out.append((j, d_rot, d_t, False))
-                continue
-            r = icp_result(X_inv(poses[fit[0]]), o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist)
-            X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse
-            tracked[j] = _good(r, cfg)
-            out.append((j, d_rot, d_t, True))
-    return out
 
 
 def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,

@@ -200,7 +200,7 @@ class TrackingConfig:
     gauge_ee_margin: float = 0.02
     gauge_loo: bool = False
     # the table and the frame's free space as a test of a pose (resettle.pose_consistent; the fall's frames registered
-    # backwards from an adopted join, final_neighbors, resettle_path): a pose whose model lies more than
+    # backwards from an adopted join, final_neighbors): a pose whose model lies more than
     # landing_table_margin below the table (over landing_table_frac of its points) or covers pixels where the frame
     # sees through it is inconsistent
     landing_table_margin: float = 0.01
@@ -351,14 +351,6 @@ class TrackingConfig:
     spin_fall_min_deg: float = 45.0
     spin_fall_edge_deg: float = 1.0
     spin_fall_tol_deg: float = 3.0
-    # the fall's frames of an adopted join checked against the tipping motion (tracker._resettle_path,
-    # resettle.tip_path): a frame lost, inconsistent, or more than resettle_path_deg / resettle_path_dist from the
-    # turn about the leading bottom edge between the last pose before the fall and the join takes the path's pose
-    # (every resettle_path_step_deg) its points fit best among those consistent with the table and its free space
-    resettle_path: bool = False  # on: development 820 worst 22.3 -> 3.7 deg; evaluation 710 6.05 -> 5.87 deg, 6.50 -> 8.76 mm
-    resettle_path_deg: float = 5.0
-    resettle_path_dist: float = 0.02
-    resettle_path_step_deg: float = 1.0
     # the leading face made perpendicular to the base the object stood on at frame 0 when its fitted normal is within
     # resettle_square_deg of that (resettle.landing_pose; 0: off)
     resettle_square_deg: float = 0.0  # 5: development 820 join 1.42 -> 0.55 deg, median 1.99 -> 1.26 deg
@@ -487,9 +479,6 @@ class TrackingConfig:
         for name in ("resettle_flush_deg", "resettle_flush_square_deg"):
             if not 0.0 <= getattr(self, name) < 90.0:
                 raise ValueError(f"TrackingConfig.{name} must be in [0, 90), not {getattr(self, name)!r}")
-        for name in ("resettle_path_deg", "resettle_path_dist", "resettle_path_step_deg"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"TrackingConfig.{name} must be > 0, not {getattr(self, name)!r}")
         if not (isinstance(self.resettle_refine_frames, int) and self.resettle_refine_frames >= 0):
             raise ValueError(f"TrackingConfig.resettle_refine_frames must be an int >= 0, not {self.resettle_refine_frames!r}")
         if not (isinstance(self.sdf_support_open_dilate, int) and self.sdf_support_open_dilate >= 0):
