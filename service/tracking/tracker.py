@@ -21,7 +21,6 @@ refined model, and (d) frame 0 registered to that model as well, the body frame 
 so that X_WO(0) keeps its definition (a mismatch between frame 0 and the merged model would otherwise be an
 offset common to every other frame); with ``gauge_frames`` the registration of frame 0 is replaced by the robust
 mean over frame 0 and the frames at rest before the robot reaches the object (``service.tracking.gauge``).
-Toppling landings (option, off): ``final_neighbors`` re-registers fast frames from their neighbours' final poses.
 Topple landings (``resettle``, on): the pre-fall model tipped about its leading bottom edge onto its leading face
 replaces a track far from it a few frames after the landing, the settled frame a keyframe with all its points
 (``service.tracking.resettle``); after the loop the join moves along the tipping direction until the object's base
@@ -567,8 +566,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             tracked[i] = _good(r, cfg)
             if i % 20 == 0:
                 _report(progress, 0.62 + 0.18 * i / N, f"final registration {i}/{N}")
-        if cfg.final_neighbors:
-            _final_from_neighbors(session, obs, X, tracked, frac, rmse, model, cfg, icp_kw)
         if cfg.regauge_frame0:
             from dataclasses import replace as _replace
 
@@ -591,36 +588,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             _level_lying(X, model, spin, session.table_height, cfg)
     X = interpolate_untracked(X, tracked)
     return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings, tilt)
-
-
-def _final_from_neighbors(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
-                          rmse: np.ndarray, model: ObjectModel, cfg: TrackingConfig, icp_kw: dict) -> None:
-    """Second start for the final registration of frames whose neighbours' final poses differ from theirs by more
-    than ``final_nb_deg`` / ``final_nb_dist`` (fast turns: a landing frame whose tracking-loop start lagged): the
-    registration from the neighbour's pose replaces the frame's when it fits better (inlier fraction, residual) and
-    is consistent with the table and the frame's own free space (``resettle.pose_consistent``). Neighbour poses
-    are those of the final pass (not updated during this sweep). Updates X, tracked, frac, rmse in place."""
-    X0 = X.copy()
-    Q = model.Q[:: max(1, len(model.Q) // 4000)]
-    for i in range(1, len(obs)):
-        o = obs[i]
-        if len(o.P_W) < cfg.min_points:
-            continue
-        starts = [X0[j] for j in (i - 1, i + 1) if 0 < j < len(obs) and tracked[j]
-                  and any(np.array(pose_distance(X0[i], X0[j])) > (cfg.final_nb_dist, cfg.final_nb_deg))]
-        if not starts:
-            continue
-        ok = _consistent_in(session, i, Q, cfg)
-        cur = IcpResult(X[i], frac[i], rmse[i], 0, np.zeros(0))
-        cur_ok = ok(X[i])
-        for Xs in starts:
-            r = icp(o.P_W, Xs, model.tree, model.Q, model.N, N_src=o.N_W,
-                    **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
-            r_ok = _good(r, cfg) and ok(r.X_WO)
-            if r_ok and (not cur_ok or _better(r, cur)):
-                cur, cur_ok = r, True
-        X[i], frac[i], rmse[i] = cur.X_WO, cur.inlier_frac, cur.rmse
-        tracked[i] = _good(cur, cfg)
 
 
 def _consistent_in(session, j: int, Q: np.ndarray, cfg: TrackingConfig) -> Callable[[np.ndarray], bool]:

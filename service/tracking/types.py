@@ -200,17 +200,12 @@ class TrackingConfig:
     gauge_ee_margin: float = 0.02
     gauge_loo: bool = False
     # the table and the frame's free space as a test of a pose (resettle.pose_consistent; the fall's frames registered
-    # backwards from an adopted join, final_neighbors): a pose whose model lies more than
+    # backwards from an adopted join): a pose whose model lies more than
     # landing_table_margin below the table (over landing_table_frac of its points) or covers pixels where the frame
     # sees through it is inconsistent
     landing_table_margin: float = 0.01
     landing_table_frac: float = 0.02
     landing_seen_frac: float = 0.05  # ... or more of its points where the frame's depth reading lies behind them
-    # final pass: frames whose neighbours' final poses differ by more than final_nb_deg / final_nb_dist are also
-    # registered from those poses; the better consistent fit wins (tracker._final_from_neighbors)
-    final_neighbors: bool = False
-    final_nb_deg: float = 2.0
-    final_nb_dist: float = 0.005
     # the band behind each object ray ends where another view saw the point in front of its own reading (free space
     # or the far side of a thin wall), else keeps trunc (service.sdf.evidence_band; visible.band_depth)
     sdf_band_evidence: bool = False
@@ -409,7 +404,7 @@ class TrackingConfig:
                      "spin_border_px", "spin_tol", "spin_inlier_deg", "kf_still_rate_deg", "kf_still_max_frames",
                      "crease_dist", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
                      "landing_table_margin", "landing_table_frac", "landing_seen_frac",
-                     "final_nb_deg", "final_nb_dist", "w_sil", "sil_tol_px", "sil_occ_margin", "sil_huber_px",
+                     "w_sil", "sil_tol_px", "sil_occ_margin", "sil_huber_px",
                      "sil_max_px", "sil_iters", "sil_w_front", "sil_front_margin", "sil_max_step",
                      "sil_max_step_deg", "sil_max_inlier_loss"):
             if not getattr(self, name) >= 0:
