@@ -43,9 +43,6 @@ the weak directions at ``color_tau`` (docs/tracking.md for the figures).
 Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast
 on the face it rests on (``kf_still_speed``, ``_defer_keyframe``); edge points, whose normals blend two faces, are
 dropped (``crease_dist``, ``geometry.crease_points``) and ICP pairs need compatible normals (``icp_normal_cos``).
-Silhouette and free space (``w_sil``, off by default; ``service.tracking.silhouette``): after ICP in the tracking
-loop and the final pass (frame 0 included), model points must project inside the mask or behind an occluder and
-not in front of the object's depth reading; the refined pose is taken when it moved only a few millimetres.
 Frames never tracked keep tracked=False and get poses interpolated (slerp/lerp) between tracked neighbours.
 O: origin at the centroid of frame 0's object points in W, axes parallel to W (docs/conventions.md).
 """
@@ -419,9 +416,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                     color_tau=cfg.color_tau, color_rot_only=cfg.color_rot_only)
 
     deg_kw = deg_kw_for("track")
-    sil_st = cfg.stage_set("sil_stages") if cfg.w_sil > 0 else frozenset()
-    rims: dict[int, np.ndarray] = {0: _rim(session, 0, cfg)} if sil_st else {}  # keyframe index -> rim points in W
-    sil_Q = _sil_model(model, keyframes, rims, cfg) if sil_st else None
     n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
     frng = np.random.default_rng(cfg.seed + 1)  # RANSACs of the keyframe features (own stream: rng unchanged)
     landings: list = []  # resettle.Landing of every topple landing checked (cfg.resettle)
@@ -464,8 +458,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                         **{**icp_kw, "dist0": 2 * cfg.icp_dist0})
                 if _better(r, best):
                     best = r
-        if "track" in sil_st and _good(best, cfg):
-            best = _sil_refine(session, i, o.P_W, best, model, sil_Q, cfg)
         X[i] = best.X_WO
         frac[i], rmse[i] = best.inlier_frac, best.rmse
         if not _good(best, cfg) or _jump(X[a], X[i], session.frame_times[i] - session.frame_times[a], cfg):
@@ -479,9 +471,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 best, model = rel
                 frac[i], rmse[i] = best.inlier_frac, best.rmse
                 last[:] = [i]
-                if sil_st:
-                    rims[i] = _rim(session, i, cfg)
-                    sil_Q = _sil_model(model, keyframes, rims, cfg)
         # keyframe?
         dists = [pose_distance(kf.X_WO, X[i]) for kf in keyframes]
         far = min(max(d / cfg.kf_dist, ang / cfg.kf_angle_deg) for d, ang in dists) >= 1.0
@@ -517,9 +506,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 if carver is not None:
                     carver.add(i, session.depth(i), X[i])
                 model = _model_from(keyframes, cfg.model_voxel)
-                if sil_st:
-                    rims[i] = _rim(session, i, cfg)
-                    sil_Q = _sil_model(model, keyframes, rims, cfg)
         if i % 10 == 0:
             _report(progress, 0.6 * i / N, f"tracking frame {i}/{N}, {len(keyframes)} keyframes")
 
@@ -541,15 +527,10 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                                       cfg, frng) if "refine" in stages else (None, None)
                 r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=kf.N_W,
                         **{**icp_kw, "dist0": 0.015}, **{**deg_kw_for("refine"), **col_kw("refine", kf.C, others)})
-                if "refine" in sil_st and _good(r, cfg):
-                    r = _sil_refine(session, kf.index, kf.P_W, r, others,
-                                    _sil_model(others, [kk for j, kk in enumerate(keyframes) if j != k], rims, cfg), cfg)
                 if _good(r, cfg):
                     _place_keyframe(kf, r.X_WO, carver)
             model = _model_from(keyframes, cfg.model_voxel)
     if cfg.final_pass:
-        if "final" in sil_st:
-            sil_Q = _sil_model(model, keyframes, rims, cfg)
         for i in range(1, N):
             o = obs[i]
             if len(o.P_W) < cfg.min_points:
@@ -560,8 +541,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             r = icp(o.P_W, start, model.tree, model.Q, model.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=o.N_W,
                     **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters},
                     **{**deg_kw_for("final"), **col_kw("final", o.C, model)})
-            if "final" in sil_st and _good(r, cfg):
-                r = _sil_refine(session, i, o.P_W, r, model, sil_Q, cfg)
             X[i], frac[i], rmse[i] = r.X_WO, r.inlier_frac, r.rmse
             tracked[i] = _good(r, cfg)
             if i % 20 == 0:
@@ -570,11 +549,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             from dataclasses import replace as _replace
 
             o0 = observe(session, 0, _replace(cfg, max_points=cfg.regauge_points), rng)  # dense: one frame sets O
-            sil0 = None
-            if "final" in sil_st:  # frame 0 registered like the others, or their silhouette shift becomes an offset
-                def sil0(r: IcpResult, m: ObjectModel) -> IcpResult:
-                    return _sil_refine(session, 0, o0.P_W, r, m, _sil_model(m, keyframes, rims, cfg), cfg)
-            model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw, obs, tracked, session, sil0)
+            model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw, obs, tracked, session)
         if cfg.resettle_flush_deg > 0 and landings:  # the settled stretch flush with the table, re-registered (after the
             # gauge: the base the object stood on is -z in the final O)
             model = _resettle_flush(session, obs, X, tracked, frac, rmse, keyframes, carver, landings, cfg) or model
@@ -906,12 +881,12 @@ def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConf
 
 def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], carver: "FreeSpace | None",
              cfg: TrackingConfig, icp_kw: dict, obs: list[FrameObs] | None = None,
-             tracked: np.ndarray | None = None, session=None, sil: Callable | None = None) -> ObjectModel:
+             tracked: np.ndarray | None = None, session=None) -> ObjectModel:
     """Register frame 0 to the final model like every other frame (pose X̂_0 of the model frame M) and move
     the body frame so that X_WO(0) keeps its definition X_0 (identity rotation, centroid origin):
     X_WO(i) ← X_WO(i) D with D = X̂_0⁻¹ X_0 = X_MO, model and keyframe points p_O = D⁻¹ p_M. Otherwise a
     mismatch between frame 0's own points and the merged model of all keyframes would be an offset common to
-    all other frames. ``sil``: the silhouette refinement of the final pass, applied to frame 0 too.
+    all other frames.
     Updates X, keyframes and carver in place; returns the model in the new frame.
     With ``gauge_loo`` frame 0 is registered to the model without keyframe 0, with ``gauge_frames`` X̂_0 is the
     robust mean over frame 0 and the frames at rest before the robot reaches the object (``service.tracking.gauge``)."""
@@ -920,8 +895,6 @@ def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Ke
     reg = _model_from(keyframes[1:], cfg.model_voxel) if cfg.gauge_loo and len(keyframes) > 2 else model
     r = icp(o0.P_W, X[0], reg.tree, reg.Q, reg.N, N_src=o0.N_W,
             **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
-    if sil is not None and _good(r, cfg):
-        r = sil(r, model)  # silhouette term (sil_stages "final"), as for the other frames
     X0_hat = r.X_WO if _good(r, cfg) else None
     if cfg.gauge_frames > 0 and obs is not None and tracked is not None and session is not None:
         X0_hat = _gauge_from_early(session, X0_hat, X, obs, tracked, model, cfg)
@@ -1052,69 +1025,6 @@ def _kf_features(kp_W: np.ndarray, desc: np.ndarray | None, X_WO: np.ndarray, ke
     if dt > 0.03 or da > 30.0:
         return None, None
     return fW[inl], fO[inl]
-
-
-def _rim(session, i: int, cfg: TrackingConfig) -> np.ndarray:
-    """Rim points (W) of frame i for the silhouette model (``silhouette.rim_points``); none with sil_rim off."""
-    from service.tracking.silhouette import rim_points
-
-    if not cfg.sil_rim:
-        return np.zeros((0, 3))
-    P = rim_points(session.depth(i), session.mask(i), session.K, session.X_WC, cfg.erode_px, session.table_height,
-                   cfg.table_clearance)
-    return P[~near_effector(session, i, P, cfg)]
-
-
-def _sil_model(model: ObjectModel, keyframes: list[Keyframe], rims: dict[int, np.ndarray],
-               cfg: TrackingConfig) -> np.ndarray:
-    """Points (O) whose projections the silhouette term tests: the model plus the keyframes' rim points."""
-    from service.tracking.silhouette import model_points
-
-    parts = [model.Q]
-    for kf in keyframes:
-        R = rims.get(kf.index)
-        if R is not None and len(R):
-            X_OW = X_inv(kf.X_WO)
-            parts.append(R @ X_OW[:3, :3].T + X_OW[:3, 3])
-    Q = model_points(parts, cfg.model_voxel, cfg.sil_points)
-    if cfg.sil_model_smooth > 0:  # scattered like one reading, the points of a correct model lie in front of it
-        from service.tracking.silhouette import smooth_points
-
-        Q = smooth_points(Q, cfg.sil_model_smooth)
-    return Q
-
-
-def _sil_refine(session, i: int, P_W: np.ndarray, r: IcpResult, model: ObjectModel, sil_Q: np.ndarray,
-                cfg: TrackingConfig) -> IcpResult:
-    """ICP result r of frame i refined with the silhouette term (``silhouette.refine``); r when the refined pose
-    fails the lost-track test, moved more than sil_max_step / sil_max_step_deg from r or lost more than
-    sil_max_inlier_loss of its inlier fraction."""
-    from service.tracking.silhouette import make_view, refine
-
-    view = make_view(session.depth(i), session.mask(i), session.K, session.X_WC, jump=cfg.edge_jump,
-                     pad=int(np.ceil(cfg.sil_max_px)) + 4, front_smooth_px=cfg.sil_front_smooth_px)
-    if not _sil_needed(sil_Q, r, view, cfg):
-        return r
-    out = refine(P_W, r.X_WO, model.tree, model.Q, model.N, sil_Q, view, iters=cfg.sil_iters, dist=cfg.icp_dist_min,
-                 inlier_dist=cfg.inlier_dist, w_sil=cfg.w_sil, tol_px=cfg.sil_tol_px, occ_margin=cfg.sil_occ_margin,
-                 huber_px=cfg.sil_huber_px, max_px=cfg.sil_max_px, w_front=cfg.sil_w_front,
-                 front_margin=cfg.sil_front_margin, weak_ratio=cfg.sil_weak_ratio, weak_len=cfg.sil_weak_len)
-    dt, da = pose_distance(r.X_WO, out.X_WO)
-    if not _good(out, cfg) or dt > cfg.sil_max_step or da > cfg.sil_max_step_deg \
-            or out.inlier_frac < r.inlier_frac - cfg.sil_max_inlier_loss:
-        return r  # a correction of a few millimetres is what the term is for: a larger move is a misfit
-    return out
-
-
-def _sil_needed(sil_Q: np.ndarray, r: IcpResult, view, cfg: TrackingConfig) -> bool:
-    """Whether the silhouette refinement runs on a frame (sil_gate_frac > 0): at least that fraction of the model
-    points projecting onto the frame's object readings lie more than sil_gate_margin in front of them."""
-    if cfg.sil_gate_frac <= 0:
-        return True
-    from service.tracking.silhouette import front_violations
-
-    n_v, n = front_violations(sil_Q, X_inv(r.X_WO), view, cfg.sil_gate_margin)
-    return n > 0 and n_v >= cfg.sil_gate_frac * n
 
 
 def interpolate_untracked(X_WO: np.ndarray, tracked: np.ndarray) -> np.ndarray:

@@ -12,8 +12,7 @@ from service.session.types import Session
 
 
 _STAGES = {"degen_stages": frozenset({"track", "ba", "refine", "final"}),
-           "color_stages": frozenset({"track", "refine", "final"}),
-           "sil_stages": frozenset({"track", "refine", "final"})}
+           "color_stages": frozenset({"track", "refine", "final"})}
 
 
 @dataclass(frozen=True)
@@ -218,42 +217,10 @@ class TrackingConfig:
     sdf_drop_contradicted: bool = True
     sdf_contradict_margin: float = 0.005
     sdf_contradict_views: int = 3  # ... by at least this many frames
-    # silhouette term (service.tracking.silhouette): model points (plus the keyframes' rim points) must project
-    # inside the object mask or behind an occluder; after ICP a few Gauss-Newton steps of point-to-plane plus this
-    # term, in the stages of sil_stages (0: off). It constrains the sliding along the edge of the only faces seen
-    w_sil: float = 0.0  # weight per silhouette residual (m), relative to one point-to-plane term
-    sil_stages: str = "track,final"  # tracking loop, final pass (frame 0 included), leave-one-out rounds ("refine":
-    # pushed the keyframes 2-3 mm away from the camera on strike session 511)
-    sil_tol_px: float = 0.0  # a point may lie this far (px) outside the mask's outline without cost
-    sil_occ_margin: float = 0.005  # a reading this much (m) in front of a point hides it (occluder, robot)
-    sil_huber_px: float = 1.0  # Huber threshold (px)
-    sil_max_px: float = 8.0  # points farther outside are ignored (model noise, gross misfit)
-    sil_iters: int = 3  # Gauss-Newton iterations
-    sil_points: int = 4000  # model points projected (even stride beyond)
-    sil_rim: bool = True  # keyframes' rim points (the ring the erosion removed, depth consistent) join them
-    sil_w_front: float = 1.0  # free-space part: a model point projecting inside the mask must not lie in front of the
-    # object's reading there (weight per residual; 0: silhouette only)
-    sil_front_margin: float = 0.002  # ... by more than this (m): depth noise
-    sil_max_step: float = 0.006  # a refined pose farther than this (m) or
-    sil_max_step_deg: float = 2.0  # turned more than this from the ICP pose, or whose inlier fraction fell by more
-    sil_max_inlier_loss: float = 0.03  # than this, is not taken (none 511 without these bounds: a 90° flip)
     # a topple's fall (resettle.find_fall): its last fast step turns more than settle_fast_deg per frame, the fall
     # starts where the steps turn more than settle_fall_deg per frame
     settle_fast_deg: float = 8.0
     settle_fall_deg: float = 2.0
-    # safeguards of the silhouette term (w_sil > 0; 0: not used; all off, docs/tracking.md "Why the free-space term
-    # hurts"): it acts only along the directions the depth leaves weak (eigenvalues of the point-to-plane Hessian,
-    # rotation scaled by sil_weak_len, below sil_weak_ratio x the largest; none: the ICP pose is kept), and only in
-    # frames where at least sil_gate_frac of the model points projecting onto object readings lie more than
-    # sil_gate_margin (m) in front of them (free space violated)
-    sil_weak_ratio: float = 0.0
-    sil_weak_len: float = 0.05
-    sil_gate_frac: float = 0.0
-    sil_gate_margin: float = 0.004
-    sil_front_smooth_px: int = 0  # free-space reading averaged over (2k+1)^2 continuous pixels (0: the pixel's own)
-    sil_model_smooth: float = 0.0  # the term's model points moved onto the plane of their neighbours within this (m)
-    # (model points scatter like one reading: 20-30 % of a correctly placed model lay > 2 mm in front of the reading)
-
     # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames),
     # "graph" (spin.spin_graph: a one-parameter pose graph over frame pairs: spin_graph_short links to the nearest
     # earlier frames, plus longer links only between frames whose views differ by less than spin_graph_gate_deg and
@@ -399,17 +366,13 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.color_mode must be 'gray' or 'chroma', not {self.color_mode!r}")
         self.stage_set("degen_stages")
         self.stage_set("color_stages")
-        self.stage_set("sil_stages")
         for name in ("w_feat_degen", "w_color", "max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
                      "spin_border_px", "spin_tol", "spin_inlier_deg", "kf_still_rate_deg", "kf_still_max_frames",
                      "crease_dist", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
-                     "landing_table_margin", "landing_table_frac", "landing_seen_frac",
-                     "w_sil", "sil_tol_px", "sil_occ_margin", "sil_huber_px",
-                     "sil_max_px", "sil_iters", "sil_w_front", "sil_front_margin", "sil_max_step",
-                     "sil_max_step_deg", "sil_max_inlier_loss"):
+                     "landing_table_margin", "landing_table_frac", "landing_seen_frac"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
-        for name in ("spin_features", "spin_min_votes", "spin_smooth", "sil_points"):
+        for name in ("spin_features", "spin_min_votes", "spin_smooth"):
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
 
@@ -447,12 +410,6 @@ class TrackingConfig:
         for name in ("settle_fast_deg", "settle_fall_deg"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
-        for name in ("sil_weak_ratio", "sil_gate_frac", "sil_gate_margin", "sil_front_smooth_px",
-                     "sil_model_smooth"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
-        if not self.sil_weak_len > 0:
-            raise ValueError(f"TrackingConfig.sil_weak_len must be > 0, not {self.sil_weak_len!r}")
         for name in ("mask_trim_px", "mask_trim_iters", "mask_trim_deep_px"):
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
@@ -495,7 +452,7 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_arc_tau must be in [0, 1), not {self.spin_arc_tau!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
-        """The stages named by ``degen_stages``, ``color_stages`` or ``sil_stages`` (comma-separated; ValueError for
+        """The stages named by ``degen_stages`` or ``color_stages`` (comma-separated; ValueError for
         an unknown one)."""
         allowed = _STAGES[name]
         got = frozenset(x.strip() for x in getattr(self, name).split(",") if x.strip())
