@@ -36,10 +36,6 @@ or extrusion sliding), 3-D ORB correspondences are added restricted to those dir
 shapes they add nothing. ORB keypoints can be taken only ``feat_border_px`` inside the mask: keypoints whose
 patch reaches the silhouette or an occluder edge follow the image outline rather than the surface (the limb of
 a rolling bottle stays in place) and pull the estimated motion toward zero.
-Colour along the weak directions (``w_color``, off by default; ``geometry.color_gradients``, Park, Zhou & Koltun
-2017): keyframe points keep their chromaticity (or luma), the model a voxel-averaged colour and its tangent-plane
-gradient per point, and the photometric residual enters the ICP of the stages in ``color_stages`` projected on
-the weak directions at ``color_tau`` (docs/tracking.md for the figures).
 Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast
 on the face it rests on (``kf_still_speed``, ``_defer_keyframe``); edge points, whose normals blend two faces, are
 dropped (``crease_dist``, ``geometry.crease_points``) and ICP pairs need compatible normals (``icp_normal_cos``).
@@ -55,7 +51,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from service.tracking.geometry import (IcpResult, backproject, color_gradients, crease_points, depth_continuous, icp,
+from service.tracking.geometry import (IcpResult, backproject, crease_points, depth_continuous, icp,
                                        pixel_normals, ransac_rigid)
 from service.tracking.types import TrackingConfig
 from service.tracking.voxels import group_sums, voxel_groups
@@ -77,7 +73,6 @@ class FrameObs:
     kp_W: np.ndarray  # (F,3) 3-D feature points
     desc: np.ndarray | None  # (F,32) uint8 ORB descriptors
     n_mask: int
-    C: np.ndarray | None = None  # (N,) intensities in [0, 1] of P_W (colour term on)
     spin_feats: tuple[np.ndarray, np.ndarray | None] | None = None  # interior keypoints (spin closure on)
 
 
@@ -91,7 +86,6 @@ class Keyframe:
     kp_O: np.ndarray
     desc: np.ndarray | None
     kp_W: np.ndarray | None = None
-    C: np.ndarray | None = None  # (len(P_W),) intensities of the added points (colour term on)
 
 
 def _place_keyframe(kf: Keyframe, X_WO: np.ndarray, carver) -> None:
@@ -113,12 +107,9 @@ class ObjectModel:
     Q: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     N: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     tree: cKDTree | None = None
-    C: np.ndarray | None = None  # (M,) voxel-averaged intensities (colour term on)
-    G: np.ndarray | None = None  # (M,3) their tangent-plane gradients (geometry.color_gradients)
 
     @staticmethod
-    def build(voxel: float, parts: list[tuple[np.ndarray, np.ndarray]],
-              colors: list[np.ndarray | None] | None = None) -> "ObjectModel":
+    def build(voxel: float, parts: list[tuple[np.ndarray, np.ndarray]]) -> "ObjectModel":
         P = np.concatenate([p for p, _ in parts])
         Nn = np.concatenate([n for _, n in parts])
         key = np.floor(P / voxel).astype(np.int64)
@@ -127,14 +118,7 @@ class ObjectModel:
         Nm = group_sums(inv, Nn, len(cnt))
         Q /= cnt[:, None]
         Nm /= np.maximum(np.linalg.norm(Nm, axis=1, keepdims=True), 1e-12)
-        tree = cKDTree(Q)
-        if colors is None or any(c is None for c in colors):
-            return ObjectModel(voxel, Q, Nm, tree)
-        Cc = np.concatenate(colors)
-        Cm = np.zeros((len(cnt),) + Cc.shape[1:])
-        np.add.at(Cm, inv, Cc)
-        Cm /= cnt.reshape((-1,) + (1,) * (Cc.ndim - 1))
-        return ObjectModel(voxel, Q, Nm, tree, Cm, color_gradients(Q, Nm, Cm, tree, radius=3.5 * voxel))
+        return ObjectModel(voxel, Q, Nm, cKDTree(Q))
 
 
 def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> FrameObs:
@@ -166,15 +150,11 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
     R, t = X_WC[:3, :3], X_WC[:3, 3]
     P_W = P_C @ R.T + t
     N_W = N_C @ R.T
-    C = None
-    if cfg.w_color > 0:
-        C = point_colors(session.rgb(i), u, v, cfg.color_mode, cfg.color_blur_px)
     # the table next to the object's base has continuous depth and leaks in with the mask boundary
     above = (P_W[:, 2] > session.table_height + cfg.table_clearance) & ~near_effector(session, i, P_W, cfg)
     if cfg.crease_dist > 0:  # edge points: their normals blend two faces (geometry.crease_points)
         above &= ~crease_points(P_W, N_W, cfg.crease_dist, cfg.crease_cos)
     P_W, N_W = P_W[above], N_W[above]
-    C = None if C is None else C[above]
     kp_W = np.zeros((0, 3))
     desc = None
     gray = None  # the grey image, converted once for the ORB features and the spin closure's
@@ -209,28 +189,7 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
         if gray is None:
             gray = cv2.cvtColor(session.rgb(i), cv2.COLOR_RGB2GRAY)
         spin_feats = interior_features(gray, depth, mask, K, X_WC, cfg.spin_border_px, cfg.spin_features)
-    return FrameObs(P_W, N_W, kp_W, desc, n_mask, C, spin_feats)
-
-
-def point_colors(rgb: np.ndarray, u: np.ndarray, v: np.ndarray, mode: str, blur_px: float) -> np.ndarray:
-    """Appearance of pixels (u, v) of an RGB image (H,W,3) uint8 for the colour term, from the image blurred with a
-    Gaussian of σ = blur_px: ``gray`` (N,) the Rec. 601 luma in [0, 1]; ``chroma`` (N,2) the chromaticities
-    r/(r+g+b), g/(r+g+b), which Lambert shading under white light (a factor common to the three channels)
-    leaves unchanged — the shading of a turning body stays with the light, not with the surface."""
-    import cv2
-
-    if mode == "gray":
-        g = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
-        if blur_px > 0:
-            g = cv2.GaussianBlur(g, (0, 0), blur_px)
-        return g[v, u].astype(np.float64)
-    if mode != "chroma":
-        raise ValueError(f"color_mode must be 'gray' or 'chroma', not {mode!r}")
-    f = rgb.astype(np.float32)
-    if blur_px > 0:
-        f = cv2.GaussianBlur(f, (0, 0), blur_px)
-    c = f[v, u].astype(np.float64)
-    return c[:, :2] / np.maximum(c.sum(1, keepdims=True), 1.0)
+    return FrameObs(P_W, N_W, kp_W, desc, n_mask, spin_feats)
 
 
 def _match(desc_a: np.ndarray | None, desc_b: np.ndarray | None, ratio: float = 0.8) -> np.ndarray:
@@ -389,8 +348,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     tracked[0], frac[0], rmse[0] = True, 1.0, 0.0
     X_OW0 = X_inv(X[0])
     kf0 = Keyframe(0, X[0].copy(), o0.P_W[keep] @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.P_W[keep], o0.N_W[keep],
-                   o0.kp_W @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.desc, o0.kp_W,
-                   None if o0.C is None else o0.C[keep])
+                   o0.kp_W @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.desc, o0.kp_W)
     keyframes = [kf0]
     carver = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px) if cfg.carve else None
     if carver is not None:
@@ -406,14 +364,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
 
     def deg_kw_for(stage: str) -> dict:
         return dict(w_feat_degen=cfg.w_feat_degen if stage in stages else 0.0, degen_tau=cfg.degen_tau)
-
-    cstages = cfg.stage_set("color_stages")
-
-    def col_kw(stage: str, C_src: np.ndarray | None, m: "ObjectModel") -> dict:
-        if cfg.w_color <= 0 or stage not in cstages or C_src is None or m.C is None:
-            return {}
-        return dict(C_src=C_src, C_model=m.C, G_model=m.G, w_color=cfg.w_color, color_huber=cfg.color_huber,
-                    color_tau=cfg.color_tau, color_rot_only=cfg.color_rot_only)
 
     deg_kw = deg_kw_for("track")
     n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
@@ -448,7 +398,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 if dt < 0.01 and da < 5.0:
                     continue  # this start converges to the pose already found
             r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw,
-                    **{**deg_kw, **col_kw("track", o.C, model)})
+                    **deg_kw)
             if _better(r, best):
                 best = r
         if a != i - 1 and not _good(best, cfg):
@@ -500,8 +450,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                                seen=int(st_all.sum()), accepted=bool(consistent and adds)))
             if consistent and adds:
                 kf = Keyframe(i, X[i].copy(), o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W[near], o.N_W[near],
-                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W,
-                              None if o.C is None else o.C[near])
+                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W)
                 keyframes.append(kf)
                 if carver is not None:
                     carver.add(i, session.depth(i), X[i])
@@ -526,7 +475,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 fW, fO = _kf_features(kf.kp_W, kf.desc, kf.X_WO, [kk for j, kk in enumerate(keyframes) if j != k],
                                       cfg, frng) if "refine" in stages else (None, None)
                 r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=kf.N_W,
-                        **{**icp_kw, "dist0": 0.015}, **{**deg_kw_for("refine"), **col_kw("refine", kf.C, others)})
+                        **{**icp_kw, "dist0": 0.015}, **deg_kw_for("refine"))
                 if _good(r, cfg):
                     _place_keyframe(kf, r.X_WO, carver)
             model = _model_from(keyframes, cfg.model_voxel)
@@ -540,7 +489,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             n_feat[i, 1] = 0 if fW is None else len(fW)
             r = icp(o.P_W, start, model.tree, model.Q, model.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=o.N_W,
                     **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters},
-                    **{**deg_kw_for("final"), **col_kw("final", o.C, model)})
+                    **deg_kw_for("final"))
             X[i], frac[i], rmse[i] = r.X_WO, r.inlier_frac, r.rmse
             tracked[i] = _good(r, cfg)
             if i % 20 == 0:
@@ -629,7 +578,7 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
         carver.indices = [carver.indices[k] for k in idx]
     X_OW = X_inv(Xj)
     keyframes.append(Keyframe(i, Xj.copy(), o.P_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W, o.N_W,
-                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W, o.C))
+                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W))
     if carver is not None:
         carver.add(i, session.depth(i), Xj)
     model = _model_from(keyframes, cfg.model_voxel)
@@ -956,7 +905,7 @@ def _model_from(keyframes: list[Keyframe], voxel: float) -> ObjectModel:
     for kf in keyframes:
         R_OW = kf.X_WO[:3, :3].T
         parts.append((kf.P_O, kf.N_W @ R_OW.T))
-    return ObjectModel.build(voxel, parts, [kf.C for kf in keyframes])
+    return ObjectModel.build(voxel, parts)
 
 
 def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: list[Keyframe], lost: bool

@@ -11,8 +11,7 @@ from service.sdf.types import SdfConfig, SdfGrid
 from service.session.types import Session
 
 
-_STAGES = {"degen_stages": frozenset({"track", "ba", "refine", "final"}),
-           "color_stages": frozenset({"track", "refine", "final"})}
+_STAGES = {"degen_stages": frozenset({"track", "ba", "refine", "final"})}
 
 
 @dataclass(frozen=True)
@@ -122,15 +121,6 @@ class TrackingConfig:
     w_feat_degen: float = 0.0  # off: no gain measured on the bottle/egg sessions (docs/tracking.md)
     degen_stages: str = "track,ba,refine,final"  # where: tracking loop, bundle adjustment, leave-one-out, final pass
     degen_tau: float = 0.02  # normalised eigenvalue below which a direction counts as weak (1/3: fully constrained)
-    # colour along the weak directions (geometry.color_gradients; Park, Zhou & Koltun 2017): per model point an
-    # intensity and its tangent-plane gradient, the photometric residual projected on the same weak directions
-    w_color: float = 0.0  # weight (m² per squared intensity unit; 0: off)
-    color_stages: str = "track,refine,final"  # where: tracking loop, leave-one-out rounds, final pass
-    color_tau: float = 0.1  # its weak-direction threshold (a lying bottle seen from one side: roll λ̂ ≈ 0.01–0.03)
-    color_rot_only: bool = False  # only the weak directions that are rotations (not a box face's sliding)
-    color_huber: float = 0.05  # Huber threshold of the intensity residual (intensity in [0, 1])
-    color_mode: str = "chroma"  # "gray": luma; "chroma": r, g chromaticities (unchanged by Lambert shading)
-    color_blur_px: float = 1.0  # Gaussian σ (px) of the grey image the point intensities are read from
     ba_huber: float = 0.002  # Huber threshold of its point-to-plane residuals
     ba_w_feat: float = 0.3  # weight of its feature terms
     final_pass: bool = True  # re-register every frame against the final model
@@ -358,11 +348,8 @@ class TrackingConfig:
         for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
             if f.type in ("bool", bool) and not isinstance(getattr(self, f.name), (bool, np.bool_)):
                 raise ValueError(f"TrackingConfig.{f.name} must be true or false, not {getattr(self, f.name)!r}")
-        if self.color_mode not in ("gray", "chroma"):
-            raise ValueError(f"TrackingConfig.color_mode must be 'gray' or 'chroma', not {self.color_mode!r}")
         self.stage_set("degen_stages")
-        self.stage_set("color_stages")
-        for name in ("w_feat_degen", "w_color", "max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
+        for name in ("w_feat_degen", "max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
                      "spin_border_px", "spin_tol", "spin_inlier_deg", "kf_still_rate_deg", "kf_still_max_frames",
                      "crease_dist", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
                      "landing_table_margin", "landing_table_frac", "landing_seen_frac"):
@@ -448,7 +435,7 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_arc_tau must be in [0, 1), not {self.spin_arc_tau!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
-        """The stages named by ``degen_stages`` or ``color_stages`` (comma-separated; ValueError for
+        """The stages named by ``degen_stages`` (comma-separated; ValueError for
         an unknown one)."""
         allowed = _STAGES[name]
         got = frozenset(x.strip() for x in getattr(self, name).split(",") if x.strip())
