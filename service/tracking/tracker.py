@@ -762,10 +762,6 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
                  long_votes=cfg.spin_graph_long_votes)
     if cfg.spin_fall and cfg.spin_solver == "mixed":  # the mixed estimate, no spin in topples
         res = _spin_fall(feats, X, model, cfg, common, graph)
-    elif cfg.spin_solver == "graph":  # joint estimate over frame pairs (spin.spin_graph)
-        from service.tracking.spin import spin_graph
-
-        res = spin_graph(feats, X, model.Q, model.N, min_votes=cfg.spin_graph_votes, **common, **graph)
     elif cfg.spin_solver == "mixed":  # the chain, the graph's increments over fast stretches (spin.spin_mixed)
         from service.tracking.spin import spin_mixed
 

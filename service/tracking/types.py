@@ -207,13 +207,12 @@ class TrackingConfig:
     # starts where the steps turn more than settle_fall_deg per frame
     settle_fast_deg: float = 8.0
     settle_fall_deg: float = 2.0
-    # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames),
-    # "graph" (spin.spin_graph: a one-parameter pose graph over frame pairs: spin_graph_short links to the nearest
-    # earlier frames, plus longer links only between frames whose views differ by less than spin_graph_gate_deg and
-    # by at most spin_graph_rate_deg per frame between them; links need spin_graph_votes votes; alone: bottle topple
-    # 704 17.3° -> 6.4° median but bottle pivot 711's worst frame 7.2° -> 9.2°, "Joint spin estimate") or "mixed"
-    # (default; spin.spin_mixed: the chain, with the graph's increments over fast stretches where the chain has few
-    # votes: 704 17.3°/22.0° -> 5.2°/7.9°, 707, 708, 711 within 0.05° median; docs/tracking.md "Mixed spin estimate")
+    # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames) or "mixed"
+    # (default; spin.spin_mixed: the chain, with the increments of a one-parameter pose graph over frame pairs —
+    # spin.spin_links, solve_spin_graph: spin_graph_short links to the nearest earlier frames, plus longer links only
+    # between frames whose views differ by less than spin_graph_gate_deg and by at most spin_graph_rate_deg per frame
+    # between them; links need spin_graph_votes votes — over fast stretches where the chain has few votes: 704
+    # 17.3°/22.0° -> 5.2°/7.9°, 707, 708, 711 within 0.05° median; docs/tracking.md "Mixed spin estimate")
     spin_solver: str = "mixed"
     spin_graph_gate_deg: float = 10.0
     spin_graph_rate_deg: float = 0.5  # 0: no rate test
@@ -365,8 +364,8 @@ class TrackingConfig:
         if self.spin_profile not in ("off", "mixed", "multi", "always"):
             raise ValueError("TrackingConfig.spin_profile must be 'off', 'mixed', 'multi' or 'always', "
                              f"not {self.spin_profile!r}")
-        if self.spin_solver not in ("chain", "graph", "mixed"):
-            raise ValueError(f"TrackingConfig.spin_solver must be 'chain', 'graph' or 'mixed', not {self.spin_solver!r}")
+        if self.spin_solver not in ("chain", "mixed"):
+            raise ValueError(f"TrackingConfig.spin_solver must be 'chain' or 'mixed', not {self.spin_solver!r}")
         if not self.spin_mixed_rate_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_mixed_rate_deg must be >= 0, not {self.spin_mixed_rate_deg!r}")
         if not self.spin_mixed_span >= 1:
