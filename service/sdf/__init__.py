@@ -1,8 +1,8 @@
 """Visible-geometry SDF: a dense voxel grid in O fitted to depth rays with BundleSDF's losses.
 
 Public API: :func:`fit_sdf`, :func:`sdf_query`, :func:`extract_mesh`, :class:`RaySet`, :class:`SdfConfig`,
-:class:`SdfGrid`, plus :func:`rays_from_frame` (rays of one masked depth frame) and :func:`contradicted_readings` (object rays
-other views saw through).
+:class:`SdfGrid`, plus :func:`rays_from_frame` (rays of one masked depth frame) and :func:`contradicted_readings`
+(object rays other views saw through).
 """
 
 from service.sdf.evidence import contradicted_readings

@@ -1,8 +1,8 @@
 """Mixed spin estimate (service.tracking.spin, ``spin_solver`` "mixed"): on a constructed set of matches where the
 per-frame chain fails during a fast fall (few matches; pairs 3-8 frames apart across the fall are biased and outvote
-the nearest two) and a pose graph alone would fail in a still stretch (every pair has only 4 matches, below a link's
-minimum, while the pooled anchors of the chain have enough), the mixed estimate recovers the spins in both; without a fast
-stretch, or when the chain pooled enough votes in it, it is the chain."""
+the nearest two) and a pose graph alone would fail in a still stretch (every pair has only 4 matches, below a
+link's minimum, while the pooled anchors of the chain have enough), the mixed estimate recovers the spins in both;
+without a fast stretch, or when the chain pooled enough votes in it, it is the chain."""
 
 from __future__ import annotations
 
