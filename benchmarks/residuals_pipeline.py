@@ -341,7 +341,7 @@ def main() -> None:
     ap.add_argument("--residual-config", default=None,
                     help='JSON overrides of the residual stage config, e.g. \'{"max_base_error_rel_learned": 0.08}\'')
     ap.add_argument("--tracking-config", default=None,
-                    help='JSON overrides of the tracking stage config, e.g. \'{"w_sil": 1.0}\' (every stage recomputed)')
+                    help='JSON overrides of the tracking stage config, e.g. \'{"gauge_frames": 0}\' (every stage recomputed)')
     ap.add_argument("--contact-config", default=None,
                     help='JSON overrides of the contact stage config, e.g. \'{"w_pen_ee": 50}\' (stored tracking '
                          'outputs are reused; contact and what follows are recomputed)')

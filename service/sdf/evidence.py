@@ -1,22 +1,11 @@
-"""Depth of the near-surface band behind each object ray, limited by what other views saw (evidence band).
+"""Free space seen by other views as evidence against a reading.
 
-A depth reading d on a ray says the surface is at z = d and space in front of it is empty; it says nothing of
-how far the object extends behind it. BundleSDF's band claims a fixed τ behind every reading as inside
-(S = d − z down to z = d + τ), which is wrong behind a wall thinner than τ (a mug's 6 mm) or a wedge (a prism's
-ridge): the band then reaches into air that other views of the turning object saw.
-
-Here the thickness of the object behind object ray r is measured by the other views: walking behind the reading,
-z_k = d + k·h (k = 1, 2, …, h = ``step``, up to ``trunc``), the first sample p_k that some view j sees *in front of
-its own reading* — p_k projects into view j at camera depth z_j with the reading there (min-filtered over a
-(2·px+1)² window, so that silhouettes do not count) larger than z_j + ``margin`` — is free space beyond the far
-side of the object. The thickness of r is then ℓ_r = max(z_k − h/2 − margin − d, 0) (the surface j saw lies about
-``margin`` before the first such sample), else ∞ where no view contradicts the band within ``trunc``.
-:func:`service.sdf.fit_sdf` (``band_back = ℓ``) then supervises behind the reading only down to ℓ_r, with the
-distance to the nearer of the two sides, S = −min(z − d, ℓ_r − (z − d)) (a wall of thickness ℓ_r), and keeps
-BundleSDF's band (S = d − z down to τ) where ℓ_r = ∞: behind a solid several centimetres thick nothing changes,
-behind a thin wall or a ridge seen from both sides the band no longer reaches into the air on the other side.
-Reference: space carving (Kutulakos & Seitz, "A theory of shape by space carving", IJCV 2000) applied to the
-band of BundleSDF (Wen et al., CVPR 2023).
+A depth reading d on a ray says the surface is at z = d and space in front of it is empty. A point that another
+view j sees *in front of its own reading* — it projects into view j at camera depth z_j with the reading there
+(min-filtered over a (2·px+1)² window, so that silhouettes do not count) larger than z_j + ``margin`` — is free
+space (``seen_in_front``). :func:`contradicted_readings` flags the object rays whose surface point enough other
+views saw that way (a flying pixel between a near and a far surface, a misregistered edge).
+Reference: space carving (Kutulakos & Seitz, "A theory of shape by space carving", IJCV 2000).
 """
 
 from __future__ import annotations
@@ -78,37 +67,4 @@ def contradicted_readings(
     obj = np.nonzero(rays.depth > 0)[0]
     if len(obj) and len(views):
         out[obj] = seen_in_front(rays.surface_points_O, _filtered(views, px), margin, min_views)  # surface_points_O: the object rays, in order
-    return out
-
-
-def evidence_band(
-    rays: RaySet,
-    views: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
-    trunc: float,
-    *,
-    margin: float = 0.002,
-    step: float = 0.001,
-    px: int = 2,
-) -> np.ndarray:
-    """Thickness ℓ (R,) of the object behind each ray of ``rays``, metres of camera depth (see module docstring);
-    ∞ for free rays (depth 0) and where no view contradicts the band within ``trunc``.
-
-    ``views``: (K (3,3), X_CO (4,4) pose of O in that camera, depth (H,W) m, 0 = no reading) of the frames whose
-    free space limits the band (typically the frames the rays come from)."""
-    if trunc <= 0 or step <= 0 or margin < 0:
-        raise ValueError(f"evidence_band: trunc and step must be > 0 and margin >= 0, got {trunc}, {step}, {margin}")
-    R = len(rays)
-    out = np.full(R, np.inf)
-    obj = np.nonzero(rays.depth > 0)[0]
-    if len(obj) == 0 or len(views) == 0:
-        return out
-    n = int(np.ceil(trunc / step))
-    dz = step * np.arange(1, n + 1)  # (n,)
-    o, dvec, d = rays.origins_O[obj], rays.dirs_O[obj], rays.depth[obj]
-    P = o[:, None, :] + (d[:, None] + dz[None, :])[..., None] * dvec[:, None, :]  # (M,n,3)
-    P = P.reshape(-1, 3)
-    hit = seen_in_front(P, _filtered(views, px), margin)
-    hit = hit.reshape(len(obj), n)
-    first = np.where(hit.any(1), hit.argmax(1), n)  # index of the first contradicted sample, n = none
-    out[obj] = np.where(first < n, np.maximum(dz[np.minimum(first, n - 1)] - 0.5 * step - margin, 0.0), np.inf)
     return out

@@ -3,9 +3,7 @@
 Unknown: S, a (nx,ny,nz) grid of signed distances in O (m), trilinear between voxel centres.
 For a sample at camera depth z on a ray with observed object depth d (τ = truncation):
 
-- near-surface band, −τ_b ≤ z − d ≤ τ:       w_s · ((S − (d − z)) / τ)²   (τ_b = cfg.trunc_back, default τ,
-  or per ray: with ``band_back`` = ℓ, the object's thickness behind the reading measured by other views
-  (:mod:`service.sdf.evidence`), down to min(ℓ, τ_b) with target −min(z − d, ℓ − (z − d))/τ instead)
+- near-surface band, −τ_b ≤ z − d ≤ τ:       w_s · ((S − (d − z)) / τ)²   (τ_b = cfg.trunc_back, default τ)
 - empty space, z < d − τ:                    w_e · |S/τ − 1| · [S < τ]          (one-sided toward +τ)
 - free ring rays with a non-object reading f, z < f − τ: the same empty-space term
 - free ring rays with no reading at all:     w_u · (S/τ − 0.1)² · [S < 0.1τ]     (uncertain free space)
@@ -94,7 +92,6 @@ def fit_sdf(
     bounds_O: np.ndarray | None = None,
     halfspace_O: np.ndarray | None = None,
     progress: Callable[[float, str], None] | None = None,
-    band_back: np.ndarray | None = None,
 ) -> SdfGrid:
     """Fit a voxel SDF in O to ``rays`` (see module docstring) and return it.
 
@@ -103,27 +100,18 @@ def fit_sdf(
     ``query_fn(points_O (P,3) float32 tensor) -> (P,) SDF``, differentiable; they are added to the loss.
     ``halfspace_O`` (4,) = (n, b) with unit n: the half-space n·p + b > 0 is known to be outside the object (e.g.
     below the table); the SDF is intersected with it, S ← max(S, n·p + b), in the initialisation, in every query
-    of the fit and in the returned grid.
-    ``band_back`` (R,) m, optional: thickness ℓ of the object behind each reading, measured by other views
-    (:func:`service.sdf.evidence_band`; ∞ = unknown). Behind a reading with finite ℓ the band reaches down to
-    min(ℓ, τ_b) with target S = −min(z − d, ℓ − (z − d)) (a wall of thickness ℓ); with ℓ = ∞ it is unchanged."""
+    of the fit and in the returned grid."""
     if len(rays) == 0:
         raise ValueError("fit_sdf: empty RaySet")
-    if band_back is not None:
-        band_back = np.asarray(band_back, float)
-        if band_back.shape != (len(rays),):
-            raise ValueError(f"fit_sdf: band_back must have shape ({len(rays)},), got {band_back.shape}")
-        if not np.all(band_back >= 0):
-            raise ValueError("fit_sdf: band_back (thickness behind each reading) must be >= 0 (inf: unknown)")
     n_threads = torch.get_num_threads()
     torch.set_num_threads(max(1, cfg.threads))
     try:
-        return _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O, band_back)
+        return _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O)
     finally:
         torch.set_num_threads(n_threads)
 
 
-def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None, band_back=None) -> SdfGrid:
+def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None) -> SdfGrid:
     gen = torch.Generator().manual_seed(cfg.seed)
     rng = np.random.default_rng(cfg.seed)
     if bounds_O is None:
@@ -168,7 +156,6 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None, ba
     zin_t = torch.from_numpy(zin.astype(np.float32))
     far_t = torch.from_numpy(far_end.astype(np.float32))
     w_t = torch.from_numpy(rays.weight.astype(np.float32))
-    thick_t = None if band_back is None else torch.from_numpy((band_back / tau).astype(np.float32))  # per ray, τ
     uncertain_t = torch.from_numpy(~obj & ~np.isfinite(rays.free_until))
     obj_t = torch.from_numpy(obj)
     lo_t, hi_t = torch.tensor(lo, dtype=torch.float32), torch.tensor(hi, dtype=torch.float32)
@@ -187,9 +174,7 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None, ba
         u = (torch.arange(ns, dtype=torch.float32) + torch.rand(B, ns, generator=gen)) / ns  # stratified (B,ns)
         un = (torch.arange(n_near, dtype=torch.float32) + torch.rand(B, n_near, generator=gen)) / n_near
         uf = (torch.arange(n_far, dtype=torch.float32) + torch.rand(B, n_far, generator=gen)) / n_far
-        thick = None if thick_t is None else thick_t[r][:, None]  # (B,1) thickness behind the reading, τ
-        bk = back if thick is None else thick.clamp(max=back)  # band depth behind the surface, τ
-        z_near = dd[:, None] + tau * ((2.0 + bk) * un - 2.0)  # [d − 2τ, d + τ_b]
+        z_near = dd[:, None] + tau * ((2.0 + back) * un - 2.0)  # [d − 2τ, d + τ_b]
         z_far = z0[:, None] + (z1 - z0).clamp(min=0)[:, None] * uf
         z_obj = torch.cat([z_near, z_far], 1)
         z_free = z0[:, None] + (z1 - z0).clamp(min=0)[:, None] * u
@@ -198,13 +183,12 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None, ba
         inside = ((p >= lo_t) & (p <= hi_t)).all(-1)
         S = query_fn(p.reshape(-1, 3)).reshape(B, ns) / tau
         diff = (dd[:, None] - z) / tau
-        band = isobj[:, None] & (diff <= 1.0) & (diff >= -bk) & inside
+        band = isobj[:, None] & (diff <= 1.0) & (diff >= -back) & inside
         empty = inside & ((isobj[:, None] & (diff > 1.0)) | (~isobj & ~isunc)[:, None] & (z < z1[:, None]))
         unc = inside & isunc[:, None]
         ww = w[:, None].expand(B, ns)
         n_tot = float(B * ns)
-        target = diff if thick is None else torch.maximum(diff, -thick - diff)  # −min(δ, ℓ − δ) behind, in τ
-        loss = cfg.w_surface * (ww * band * (S - target) ** 2).sum() / n_tot
+        loss = cfg.w_surface * (ww * band * (S - diff) ** 2).sum() / n_tot
         loss = loss + cfg.w_empty * (ww * empty * torch.relu(1.0 - S)).sum() / n_tot
         loss = loss + cfg.w_uncertain * (ww * unc * torch.relu(0.1 - S) ** 2).sum() / n_tot
         if cfg.w_smooth > 0:

@@ -25,7 +25,7 @@ from service.tracking.masks import TrimmedMasks
 from service.tracking.tracker import track
 from service.tracking.types import TrackingConfig, TrackingInputs, TrackingOutputs
 from service.tracking.velocity import velocities
-from service.tracking.visible import band_depth, below_table_halfspace, drop_contradicted, carved_init, pick_frames, sdf_rays, visible_points
+from service.tracking.visible import below_table_halfspace, drop_contradicted, carved_init, pick_frames, sdf_rays, visible_points
 
 __all__ = ["run", "TrackingConfig", "TrackingInputs", "TrackingOutputs"]
 
@@ -62,12 +62,9 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
                               f"{cfg.mask_trim_deep_px} px or more inside, look like background")
     rays = sdf_rays(sv, tr.X_WO, frames, tr.model.tree, cfg, rng, carver=tr.carver)
     halfspace = below_table_halfspace(tr.X_WO[0], s.table_height) if cfg.below_table_outside else None
-    band = None
     ev_frames = pick_frames(tr.tracked, cfg.sdf_band_frames) if cfg.sdf_band_frames else frames
     if cfg.sdf_drop_contradicted:
         rays = drop_contradicted(sv, tr.X_WO, ev_frames, rays, cfg)
-    if cfg.sdf_band_evidence:
-        band = band_depth(sv, tr.X_WO, ev_frames, rays, cfg)
     carver = tr.carver if cfg.sdf_carve_init else None
     support = halfspace if cfg.sdf_support_hull else None  # the hull closed down to the table (then carved)
     closure: dict = {}  # what the support closure added, whether it was kept (visible.carved_init)
@@ -75,7 +72,7 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
                        open_dilate=cfg.sdf_support_open_dilate if cfg.sdf_support_open else None,
                        open_gate=cfg.sdf_support_open_gate, info=closure) \
         if carver is not None or support is not None else None
-    grid = fit_sdf(rays, cfg.sdf, init=init, halfspace_O=halfspace, progress=rep(0.6, 0.95), band_back=band)
+    grid = fit_sdf(rays, cfg.sdf, init=init, halfspace_O=halfspace, progress=rep(0.6, 0.95))
     mesh = extract_mesh(grid)
     if mesh.is_empty:
         raise StageFailed("tracking", "the visible SDF has no zero level set (no object surface reconstructed)")
@@ -105,6 +102,6 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
 
 def _passes_frames(tracked: np.ndarray, cfg: TrackingConfig) -> np.ndarray:
     """The frames the visible-geometry passes of ``run`` read, given which frames are tracked (N,) bool: the SDF's,
-    the evidence band's and the visible set's (``pick_frames``)."""
+    the contradicted readings' and the visible set's (``pick_frames``)."""
     band = cfg.sdf_band_frames if cfg.sdf_band_frames else cfg.sdf_frames
     return np.unique(np.concatenate([pick_frames(tracked, n) for n in (cfg.sdf_frames, band, cfg.visible_frames)]))

@@ -19,13 +19,6 @@
   s_i = clip(1 − λ̂_i/τ, 0, 1); appearance terms (3-D feature correspondences, Jacobian J_f) enter the normal
   equations as Mᵀ J_fᵀ J_f M and Mᵀ J_fᵀ e, i.e. only along the weak directions, so that on well-conditioned
   shapes their biases (keypoints at depth and texture edges) do not enter at all.
-- Colour along the weak directions (Park, Zhou & Koltun 2017, "Colored point cloud registration revisited"):
-  every model point q (normal n) carries an intensity C_q and a gradient d_q in its tangent plane (d_q·n = 0,
-  ``color_gradients``: least squares over its neighbours q_j of Σ (C_q + d·(q_j − q) − C_j)² + w (d·n)²), so
-  that C_q(u) ≈ C_q + d_q·(u − q) near q. A source point p' (intensity c_p) matched to q gives the residual
-  r_C = C_q(f(p')) − c_p with f the projection onto the tangent plane; since d_q ⟂ n, r_C = C_q + d_q·(p' − q) − c_p
-  and ∂r_C/∂δ = [p' × d_q, d_q]. Its normal equations enter like the restricted features, Mᵀ J_Cᵀ J_C M and
-  Mᵀ J_Cᵀ r_C (Huber on r_C), so textureless or well-constrained shapes are unaffected.
 """
 
 from __future__ import annotations
@@ -171,13 +164,6 @@ def icp(
     w_feat: float = 0.3,
     w_feat_degen: float = 0.0,
     degen_tau: float = 0.02,
-    C_src: np.ndarray | None = None,
-    C_model: np.ndarray | None = None,
-    G_model: np.ndarray | None = None,
-    w_color: float = 0.0,
-    color_huber: float = 0.05,
-    color_tau: float = 0.1,
-    color_rot_only: bool = False,
     N_src: np.ndarray | None = None,
     normal_cos: float = 0.0,
 ) -> IcpResult:
@@ -185,15 +171,11 @@ def icp(
 
     Optional feature correspondences feat_W (F,3) ↔ feat_O (F,3) enter as point-to-point terms: with weight
     ``w_feat`` (relative to the point set) in all six directions, and with ``w_feat_degen`` only along the
-    directions the point-to-plane terms leave unconstrained (``degenerate_map``, threshold ``degen_tau``).
-    Optional intensities C_src (N,) of the source points and C_model (M,), tangent gradients G_model (M,3) of the
-    model (or several channels: (N,ch), (M,ch), (M,ch,3)) (``color_gradients``) add the coloured-ICP term with weight ``w_color`` (m² per squared intensity unit,
-    relative to the point-to-plane residuals), only along the weak directions at threshold ``color_tau`` (rotations only with ``color_rot_only``)."""
+    directions the point-to-plane terms leave unconstrained (``degenerate_map``, threshold ``degen_tau``)."""
     X_OW = np.linalg.inv(X_WO)
     huber = 0.5 * dist_min
     decay = (dist_min / dist0) ** (1.0 / max(iters - 1, 1))
     nf = 0 if feat_W is None else len(feat_W)
-    use_color = w_color > 0 and C_src is not None and C_model is not None and G_model is not None
     for it in range(iters):
         thr = max(dist_min, dist0 * decay**it)
         R, t = X_OW[:3, :3], X_OW[:3, 3]
@@ -212,21 +194,6 @@ def icp(
         Hm = (Jp * w[:, None]).T @ Jp
         g = (Jp * w[:, None]).T @ r
         Mdeg = degenerate_map(Hm, w.sum(), p, degen_tau) if (nf >= 3 and w_feat_degen > 0) else None
-        Mcol = degenerate_map(Hm, w.sum(), p, color_tau, color_rot_only) if use_color else None
-        if Mcol is not None:
-            Cm, Gm, Cs = C_model[j[ok]], G_model[j[ok]], C_src[ok]
-            if Cm.ndim == 1:  # one channel
-                Cm, Gm, Cs = Cm[:, None], Gm[:, None, :], Cs[:, None]
-            Hc, gc = np.zeros((6, 6)), np.zeros(6)
-            for ch in range(Cm.shape[1]):
-                G = Gm[:, ch]
-                rc = Cm[:, ch] + ((p - q) * G).sum(1) - Cs[:, ch]
-                wc = np.where(np.abs(rc) < color_huber, 1.0, color_huber / np.maximum(np.abs(rc), 1e-12))
-                Jc = np.hstack([_cross(p, G), G])
-                Hc += (Jc * wc[:, None]).T @ Jc
-                gc += (Jc * wc[:, None]).T @ rc
-            Hm += w_color * Mcol.T @ Hc @ Mcol
-            g += w_color * Mcol.T @ gc
         # point-to-point (against sliding on planes): residual p − q, J = [−[p]×, I]
         if w_point > 0 and len(p):
             Hm += w_point * _pt_H(p)
@@ -277,48 +244,15 @@ def icp_result(X_OW: np.ndarray, P_W: np.ndarray, tree, Q_O: np.ndarray, N_O: np
     )
 
 
-def color_gradients(Q: np.ndarray, N: np.ndarray, C: np.ndarray, tree, k: int = 10, radius: float = 0.01
-                    ) -> np.ndarray:
-    """Tangent-plane intensity gradients d (M,3) of the model points Q (M,3) with unit normals N (M,3) and
-    intensities C (M,) — or (M,ch,3) for C (M,ch), one gradient per channel — (module docstring): per point, weighted least squares over its ``k`` nearest neighbours
-    within ``radius`` (KD-tree ``tree`` over Q) of C_j − C_q ≈ d·(q_j − q), with the constraint d·n = 0 as a
-    heavily weighted row. Points with fewer than 3 neighbours get d = 0."""
-    M = len(Q)
-    if M < 4:
-        return np.zeros((M, 3))
-    kk = min(k + 1, M)
-    dist, idx = tree.query(Q, k=kk, distance_upper_bound=radius)
-    dist, idx = dist[:, 1:], idx[:, 1:]
-    ok = np.isfinite(dist)
-    jj = np.where(ok, idx, 0)
-    V = (Q[jj] - Q[:, None, :]) * ok[..., None]  # (M,k,3)
-    one = C.ndim == 1
-    C2 = C[:, None] if one else C
-    dc = (C2[jj] - C2[:, None, :]) * ok[..., None]  # (M,k,ch)
-    A = np.einsum("mki,mkj->mij", V, V)
-    cnt = ok.sum(1)
-    wn = np.einsum("mki,mki->m", V, V)  # Σ |v|²: the constraint row as heavy as all neighbour rows together
-    A += wn[:, None, None] * np.einsum("mi,mj->mij", N, N) + 1e-10 * np.eye(3)
-    b = np.einsum("mki,mkc->mic", V, dc)
-    d = np.linalg.solve(A, b).transpose(0, 2, 1)  # (M,ch,3)
-    d -= np.einsum("mci,mi->mc", d, N)[..., None] * N[:, None, :]
-    d[cnt < 3] = 0.0
-    return d[:, 0] if one else d
-
-
-def degenerate_map(H: np.ndarray, wsum: float, p: np.ndarray, tau: float, rot_only: bool = False
-                   ) -> np.ndarray | None:
+def degenerate_map(H: np.ndarray, wsum: float, p: np.ndarray, tau: float) -> np.ndarray | None:
     """M (6,6) restricting a term to the weak directions of the point-to-plane normal matrix H (6,6) of the points
-    p (N,3) with total weight wsum (module docstring); None when no direction is weak. ``rot_only``: only the weak
-    directions that are mostly rotation (‖rotation part‖² > 1/2 in the unit-consistent z), not sliding."""
+    p (N,3) with total weight wsum (module docstring); None when no direction is weak."""
     if len(p) < 6 or wsum <= 0:
         return None
     L = float(np.sqrt(np.mean(np.sum((p - p.mean(0)) ** 2, 1)))) or 1.0
     Di = np.diag([1 / L, 1 / L, 1 / L, 1.0, 1.0, 1.0])
     lam, U = np.linalg.eigh(Di @ H @ Di)
     s = np.clip(1.0 - lam / wsum / tau, 0.0, 1.0)
-    if rot_only:
-        s = s * (np.sum(U[:3] ** 2, 0) > 0.5)
     if not np.any(s > 0):
         return None
     D = np.diag([L, L, L, 1.0, 1.0, 1.0])

@@ -38,9 +38,7 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
 5. Options, off by default (``resettle_square_deg``): a leading-face normal within a few degrees of perpendicular to the base the object
    stood on at frame 0 is made perpendicular (a side of a prism standing on its base; the fit's error would stay as
    the landed object's tilt); a join near the tracked pose is adopted when the tracked pose does not rest on the face
-   the join lays on the table (``rest_offsets``); after the final pass the fall's frames that are lost, inconsistent,
-   or off the turn about the leading bottom edge between the last pose before the fall and the join (``tip_path``,
-   ``leading_pivot``) take the path pose their points fit best (``path_fit``; ``tracker._resettle_path``).
+   the join lays on the table (``rest_offsets``).
 6. After the gauge (``tracker._resettle_flush``, ``resettle_flush_deg``): in the settled stretch of every landing
    checked (adopted or not) the face of the pre-fall model lying on the table (``landed_face``, its normal squared to
    the base the object stood on) is laid flush with the table (``flush_pose``: an object at rest on a face has it on
@@ -318,65 +316,6 @@ def tip_direction(X_a: np.ndarray, X_b: np.ndarray) -> tuple[np.ndarray, float] 
     if np.linalg.norm(h) < 1e-6:
         return None
     return np.cross(h / np.linalg.norm(h), [0.0, 0.0, 1.0]), float(np.linalg.norm(w))
-
-
-def tip_path(X_a: np.ndarray, X_b: np.ndarray, pivot: np.ndarray) -> "callable":
-    """The poses of a topple between the pose X_a (4,4) before the fall and the settled pose X_b (4,4) as a turn
-    about the line through ``pivot`` (3,) (the leading bottom edge at X_a, on the table) along the axis of the
-    rotation R_b R_aᵀ: ``path(u)`` (u in [0, 1]) turns X_a by u of that rotation about the line, plus u of the
-    residual slide (the landing's slide beyond the pure turn, and the errors of the pivot), so that path(0) = X_a and
-    path(1) = X_b. Returns the function u -> (4,4)."""
-    R_a, t_a = X_a[:3, :3], X_a[:3, 3]
-    w = so3_log(X_b[:3, :3] @ R_a.T)
-    slide = X_b[:3, 3] - (pivot + so3_exp(w) @ (t_a - pivot))
-
-    def path(u: float) -> np.ndarray:
-        R_u = so3_exp(u * w)
-        return make_X(R_u @ R_a, pivot + R_u @ (t_a - pivot) + u * slide)
-
-    return path
-
-
-def leading_pivot(B_W: np.ndarray, f: np.ndarray, table_height: float) -> np.ndarray:
-    """(3,) point of the leading bottom edge: the base points B_W (B,3) (``base_points`` placed at the pose before
-    the fall) moved along the horizontal unit direction f (3,) to their farthest extent along f, at their centre
-    across f, on the table."""
-    c = B_W.mean(0)
-    p = c + (float(np.max(B_W @ f)) - float(c @ f)) * f
-    p[2] = table_height
-    return p
-
-
-def path_distance(X: np.ndarray, poses: list[np.ndarray]) -> tuple[float, float, int]:
-    """(rotation deg, translation m, index) of the pose among ``poses`` (list of (4,4)) whose rotation is nearest
-    to that of X (4,4)."""
-    d = [pose_distance(X, P) for P in poses]
-    k = int(np.argmin([a for _, a in d]))
-    return float(d[k][1]), float(d[k][0]), k
-
-
-def path_keys(P_W: np.ndarray, poses: list[np.ndarray], tree, inlier_dist: float) -> list[tuple[float, float]]:
-    """Per pose of ``poses`` (list of (4,4)) how well the frame's points P_W (N,3) fit the model with KD-tree ``tree``
-    placed there: (fraction within ``inlier_dist``, minus the mean distance capped at 2 cm); larger is better."""
-    keys = []
-    for X in poses:
-        X_OW = X_inv(X)
-        d, _ = tree.query(P_W @ X_OW[:3, :3].T + X_OW[:3, 3], distance_upper_bound=0.02)
-        d = np.minimum(d, 0.02)
-        keys.append((float(np.mean(d < inlier_dist)), -float(np.mean(d))))
-    return keys
-
-
-def path_fit(P_W: np.ndarray, poses: list[np.ndarray], tree, inlier_dist: float, ok: "callable"
-             ) -> tuple[int, float] | None:
-    """(index, inlier fraction) of the pose among ``poses`` (list of (4,4)) that the frame's points P_W (N,3) fit
-    best (fraction within ``inlier_dist`` of the model with KD-tree ``tree``; ties: the mean distance capped at
-    2 cm) among those with ``ok(X)`` (consistent with the table and the frame's own free space); None when none is."""
-    keys = path_keys(P_W, poses, tree, inlier_dist)
-    for k in sorted(range(len(poses)), key=lambda k: keys[k], reverse=True):
-        if ok(poses[k]):
-            return k, keys[k][0]
-    return None
 
 
 def rest_offsets(X: np.ndarray, X_j: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,

@@ -35,11 +35,11 @@ Textureless bodies: too few votes anywhere, θ = 0 everywhere (``SpinResult.obse
 reported as unobservable and the poses are unchanged. A correction above ``max_deg`` in any frame is not applied
 (``SpinResult.rejected``): the votes then followed something other than the surface (a lost track).
 
-Joint estimate (``spin_graph``, option): θ from a one-parameter pose graph over frame pairs instead of this chain —
-short links during motion (pair measurements across a large view change are biased), long links between similar
-views; see the comment above ``spin_links``. Mixed estimate (``spin_mixed``, the tracker's default): the chain, with
-the graph's increments over fast stretches of the tracked rotation where the chain pooled few votes; see the comment
-above ``fast_frames``.
+Pose graph (``spin_links``, ``solve_spin_graph``): θ from a one-parameter pose graph over frame pairs — short links
+during motion (pair measurements across a large view change are biased), long links between similar views; see the
+comment above ``spin_links``. Mixed estimate (``spin_mixed``, the tracker's default): the chain, with the graph's
+increments over fast stretches of the tracked rotation where the chain pooled few votes; see the comment above
+``fast_frames``.
 """
 
 from __future__ import annotations
@@ -365,7 +365,7 @@ def apply_spin(X_WO: np.ndarray, res: SpinResult) -> np.ndarray:
     return np.stack([X @ spin_matrix(res.axis_O, res.point_O, t) for X, t in zip(X_WO, res.theta)])
 
 
-# ---- joint estimate: a one-parameter pose graph over the spins (``spin_solver`` "graph") --------------------------
+# ---- a one-parameter pose graph over the spins (the increments of ``spin_solver`` "mixed" over fast stretches) ----
 #
 # Per-pair measurements. For frames i, j the mode d_ij of the votes (``spin_votes`` with the uncorrected poses)
 # measures θ_i − θ_j. Measured on the development bottle topple 531 with the true poses (every true d_ij = 0):
@@ -467,25 +467,6 @@ def solve_spin_graph(n: int, links: np.ndarray, huber_deg: float = 2.0, smooth_w
         if np.max(np.abs(dx)) < 1e-6 and it >= iters:
             break
     return th
-
-
-def spin_graph(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, Q: np.ndarray, N: np.ndarray, *,
-               tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
-               profile: str = "off", max_deg: float = 0.0, chain: int = 4, gate_deg: float = 3.0,
-               huber_deg: float = 2.0, n_short: int = 1, rate_deg: float = 0.0, long_votes: int = 0) -> SpinResult:
-    """Spin correction like ``spin_closure`` (same axis, cap, result), θ from the pose graph over frame pairs
-    (``spin_links``, ``solve_spin_graph``) instead of the per-frame chain of pooled anchor votes."""
-    n = len(X_WO)
-    is_rev, lam, a, c = find_axis(Q, N, tau, sep, profile)
-    votes = np.zeros(n, int)
-    if not is_rev:
-        return SpinResult(False, lam, a, c, np.zeros(n), votes, False)
-    links = spin_links(feats, X_WO, a, c, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, match=match,
-                       chain=chain, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg, long_votes=long_votes)
-    if len(links) == 0:
-        return SpinResult(True, lam, a, c, np.zeros(n), votes, False)
-    np.add.at(votes, links[:, 0].astype(int), links[:, 3].astype(int))
-    return _finish(solve_spin_graph(n, links, huber_deg), smooth, max_deg, lam, a, c, votes, True)
 
 
 # ---- mixed estimate: the chain, with the graph's spins over fast weak stretches (``spin_solver`` "mixed") -------

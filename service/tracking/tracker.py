@@ -21,14 +21,12 @@ refined model, and (d) frame 0 registered to that model as well, the body frame 
 so that X_WO(0) keeps its definition (a mismatch between frame 0 and the merged model would otherwise be an
 offset common to every other frame); with ``gauge_frames`` the registration of frame 0 is replaced by the robust
 mean over frame 0 and the frames at rest before the robot reaches the object (``service.tracking.gauge``).
-Toppling landings (option, off): ``final_neighbors`` re-registers fast frames from their neighbours' final poses.
 Topple landings (``resettle``, on): the pre-fall model tipped about its leading bottom edge onto its leading face
 replaces a track far from it a few frames after the landing, the settled frame a keyframe with all its points
 (``service.tracking.resettle``); after the loop the join moves along the tipping direction until the object's base
 is no longer where the settled frames see the table (``resettle_refine_frames``); the leading face is made square to
 the base the object stood on (``resettle_square_deg``, off), a join near a track that does not rest on the table is
-adopted too (``resettle_rest_deg``, off), and fall frames off the turn about the leading bottom edge take the path
-pose their points fit (``resettle_path``, off). After the gauge, the settled stretch of every landing checked is laid
+adopted too (``resettle_rest_deg``, off). After the gauge, the settled stretch of every landing checked is laid
 flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
 registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
 Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
@@ -38,16 +36,9 @@ or extrusion sliding), 3-D ORB correspondences are added restricted to those dir
 shapes they add nothing. ORB keypoints can be taken only ``feat_border_px`` inside the mask: keypoints whose
 patch reaches the silhouette or an occluder edge follow the image outline rather than the surface (the limb of
 a rolling bottle stays in place) and pull the estimated motion toward zero.
-Colour along the weak directions (``w_color``, off by default; ``geometry.color_gradients``, Park, Zhou & Koltun
-2017): keyframe points keep their chromaticity (or luma), the model a voxel-averaged colour and its tangent-plane
-gradient per point, and the photometric residual enters the ICP of the stages in ``color_stages`` projected on
-the weak directions at ``color_tau`` (docs/tracking.md for the figures).
 Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast
 on the face it rests on (``kf_still_speed``, ``_defer_keyframe``); edge points, whose normals blend two faces, are
 dropped (``crease_dist``, ``geometry.crease_points``) and ICP pairs need compatible normals (``icp_normal_cos``).
-Silhouette and free space (``w_sil``, off by default; ``service.tracking.silhouette``): after ICP in the tracking
-loop and the final pass (frame 0 included), model points must project inside the mask or behind an occluder and
-not in front of the object's depth reading; the refined pose is taken when it moved only a few millimetres.
 Frames never tracked keep tracked=False and get poses interpolated (slerp/lerp) between tracked neighbours.
 O: origin at the centroid of frame 0's object points in W, axes parallel to W (docs/conventions.md).
 """
@@ -60,7 +51,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from service.tracking.geometry import (IcpResult, backproject, color_gradients, crease_points, depth_continuous, icp,
+from service.tracking.geometry import (IcpResult, backproject, crease_points, depth_continuous, icp,
                                        pixel_normals, ransac_rigid)
 from service.tracking.types import TrackingConfig
 from service.tracking.voxels import group_sums, voxel_groups
@@ -82,7 +73,6 @@ class FrameObs:
     kp_W: np.ndarray  # (F,3) 3-D feature points
     desc: np.ndarray | None  # (F,32) uint8 ORB descriptors
     n_mask: int
-    C: np.ndarray | None = None  # (N,) intensities in [0, 1] of P_W (colour term on)
     spin_feats: tuple[np.ndarray, np.ndarray | None] | None = None  # interior keypoints (spin closure on)
 
 
@@ -96,7 +86,6 @@ class Keyframe:
     kp_O: np.ndarray
     desc: np.ndarray | None
     kp_W: np.ndarray | None = None
-    C: np.ndarray | None = None  # (len(P_W),) intensities of the added points (colour term on)
 
 
 def _place_keyframe(kf: Keyframe, X_WO: np.ndarray, carver) -> None:
@@ -118,12 +107,9 @@ class ObjectModel:
     Q: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     N: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     tree: cKDTree | None = None
-    C: np.ndarray | None = None  # (M,) voxel-averaged intensities (colour term on)
-    G: np.ndarray | None = None  # (M,3) their tangent-plane gradients (geometry.color_gradients)
 
     @staticmethod
-    def build(voxel: float, parts: list[tuple[np.ndarray, np.ndarray]],
-              colors: list[np.ndarray | None] | None = None) -> "ObjectModel":
+    def build(voxel: float, parts: list[tuple[np.ndarray, np.ndarray]]) -> "ObjectModel":
         P = np.concatenate([p for p, _ in parts])
         Nn = np.concatenate([n for _, n in parts])
         key = np.floor(P / voxel).astype(np.int64)
@@ -132,14 +118,7 @@ class ObjectModel:
         Nm = group_sums(inv, Nn, len(cnt))
         Q /= cnt[:, None]
         Nm /= np.maximum(np.linalg.norm(Nm, axis=1, keepdims=True), 1e-12)
-        tree = cKDTree(Q)
-        if colors is None or any(c is None for c in colors):
-            return ObjectModel(voxel, Q, Nm, tree)
-        Cc = np.concatenate(colors)
-        Cm = np.zeros((len(cnt),) + Cc.shape[1:])
-        np.add.at(Cm, inv, Cc)
-        Cm /= cnt.reshape((-1,) + (1,) * (Cc.ndim - 1))
-        return ObjectModel(voxel, Q, Nm, tree, Cm, color_gradients(Q, Nm, Cm, tree, radius=3.5 * voxel))
+        return ObjectModel(voxel, Q, Nm, cKDTree(Q))
 
 
 def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> FrameObs:
@@ -171,15 +150,11 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
     R, t = X_WC[:3, :3], X_WC[:3, 3]
     P_W = P_C @ R.T + t
     N_W = N_C @ R.T
-    C = None
-    if cfg.w_color > 0:
-        C = point_colors(session.rgb(i), u, v, cfg.color_mode, cfg.color_blur_px)
     # the table next to the object's base has continuous depth and leaks in with the mask boundary
     above = (P_W[:, 2] > session.table_height + cfg.table_clearance) & ~near_effector(session, i, P_W, cfg)
     if cfg.crease_dist > 0:  # edge points: their normals blend two faces (geometry.crease_points)
         above &= ~crease_points(P_W, N_W, cfg.crease_dist, cfg.crease_cos)
     P_W, N_W = P_W[above], N_W[above]
-    C = None if C is None else C[above]
     kp_W = np.zeros((0, 3))
     desc = None
     gray = None  # the grey image, converted once for the ORB features and the spin closure's
@@ -214,28 +189,7 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
         if gray is None:
             gray = cv2.cvtColor(session.rgb(i), cv2.COLOR_RGB2GRAY)
         spin_feats = interior_features(gray, depth, mask, K, X_WC, cfg.spin_border_px, cfg.spin_features)
-    return FrameObs(P_W, N_W, kp_W, desc, n_mask, C, spin_feats)
-
-
-def point_colors(rgb: np.ndarray, u: np.ndarray, v: np.ndarray, mode: str, blur_px: float) -> np.ndarray:
-    """Appearance of pixels (u, v) of an RGB image (H,W,3) uint8 for the colour term, from the image blurred with a
-    Gaussian of σ = blur_px: ``gray`` (N,) the Rec. 601 luma in [0, 1]; ``chroma`` (N,2) the chromaticities
-    r/(r+g+b), g/(r+g+b), which Lambert shading under white light (a factor common to the three channels)
-    leaves unchanged — the shading of a turning body stays with the light, not with the surface."""
-    import cv2
-
-    if mode == "gray":
-        g = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
-        if blur_px > 0:
-            g = cv2.GaussianBlur(g, (0, 0), blur_px)
-        return g[v, u].astype(np.float64)
-    if mode != "chroma":
-        raise ValueError(f"color_mode must be 'gray' or 'chroma', not {mode!r}")
-    f = rgb.astype(np.float32)
-    if blur_px > 0:
-        f = cv2.GaussianBlur(f, (0, 0), blur_px)
-    c = f[v, u].astype(np.float64)
-    return c[:, :2] / np.maximum(c.sum(1, keepdims=True), 1.0)
+    return FrameObs(P_W, N_W, kp_W, desc, n_mask, spin_feats)
 
 
 def _match(desc_a: np.ndarray | None, desc_b: np.ndarray | None, ratio: float = 0.8) -> np.ndarray:
@@ -394,8 +348,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     tracked[0], frac[0], rmse[0] = True, 1.0, 0.0
     X_OW0 = X_inv(X[0])
     kf0 = Keyframe(0, X[0].copy(), o0.P_W[keep] @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.P_W[keep], o0.N_W[keep],
-                   o0.kp_W @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.desc, o0.kp_W,
-                   None if o0.C is None else o0.C[keep])
+                   o0.kp_W @ X_OW0[:3, :3].T + X_OW0[:3, 3], o0.desc, o0.kp_W)
     keyframes = [kf0]
     carver = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px) if cfg.carve else None
     if carver is not None:
@@ -412,18 +365,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     def deg_kw_for(stage: str) -> dict:
         return dict(w_feat_degen=cfg.w_feat_degen if stage in stages else 0.0, degen_tau=cfg.degen_tau)
 
-    cstages = cfg.stage_set("color_stages")
-
-    def col_kw(stage: str, C_src: np.ndarray | None, m: "ObjectModel") -> dict:
-        if cfg.w_color <= 0 or stage not in cstages or C_src is None or m.C is None:
-            return {}
-        return dict(C_src=C_src, C_model=m.C, G_model=m.G, w_color=cfg.w_color, color_huber=cfg.color_huber,
-                    color_tau=cfg.color_tau, color_rot_only=cfg.color_rot_only)
-
     deg_kw = deg_kw_for("track")
-    sil_st = cfg.stage_set("sil_stages") if cfg.w_sil > 0 else frozenset()
-    rims: dict[int, np.ndarray] = {0: _rim(session, 0, cfg)} if sil_st else {}  # keyframe index -> rim points in W
-    sil_Q = _sil_model(model, keyframes, rims, cfg) if sil_st else None
     n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
     frng = np.random.default_rng(cfg.seed + 1)  # RANSACs of the keyframe features (own stream: rng unchanged)
     landings: list = []  # resettle.Landing of every topple landing checked (cfg.resettle)
@@ -456,7 +398,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 if dt < 0.01 and da < 5.0:
                     continue  # this start converges to the pose already found
             r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw,
-                    **{**deg_kw, **col_kw("track", o.C, model)})
+                    **deg_kw)
             if _better(r, best):
                 best = r
         if a != i - 1 and not _good(best, cfg):
@@ -466,8 +408,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                         **{**icp_kw, "dist0": 2 * cfg.icp_dist0})
                 if _better(r, best):
                     best = r
-        if "track" in sil_st and _good(best, cfg):
-            best = _sil_refine(session, i, o.P_W, best, model, sil_Q, cfg)
         X[i] = best.X_WO
         frac[i], rmse[i] = best.inlier_frac, best.rmse
         if not _good(best, cfg) or _jump(X[a], X[i], session.frame_times[i] - session.frame_times[a], cfg):
@@ -481,9 +421,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 best, model = rel
                 frac[i], rmse[i] = best.inlier_frac, best.rmse
                 last[:] = [i]
-                if sil_st:
-                    rims[i] = _rim(session, i, cfg)
-                    sil_Q = _sil_model(model, keyframes, rims, cfg)
         # keyframe?
         dists = [pose_distance(kf.X_WO, X[i]) for kf in keyframes]
         far = min(max(d / cfg.kf_dist, ang / cfg.kf_angle_deg) for d, ang in dists) >= 1.0
@@ -513,15 +450,11 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                                seen=int(st_all.sum()), accepted=bool(consistent and adds)))
             if consistent and adds:
                 kf = Keyframe(i, X[i].copy(), o.P_W[near] @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W[near], o.N_W[near],
-                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W,
-                              None if o.C is None else o.C[near])
+                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W)
                 keyframes.append(kf)
                 if carver is not None:
                     carver.add(i, session.depth(i), X[i])
                 model = _model_from(keyframes, cfg.model_voxel)
-                if sil_st:
-                    rims[i] = _rim(session, i, cfg)
-                    sil_Q = _sil_model(model, keyframes, rims, cfg)
         if i % 10 == 0:
             _report(progress, 0.6 * i / N, f"tracking frame {i}/{N}, {len(keyframes)} keyframes")
 
@@ -542,16 +475,11 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 fW, fO = _kf_features(kf.kp_W, kf.desc, kf.X_WO, [kk for j, kk in enumerate(keyframes) if j != k],
                                       cfg, frng) if "refine" in stages else (None, None)
                 r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=kf.N_W,
-                        **{**icp_kw, "dist0": 0.015}, **{**deg_kw_for("refine"), **col_kw("refine", kf.C, others)})
-                if "refine" in sil_st and _good(r, cfg):
-                    r = _sil_refine(session, kf.index, kf.P_W, r, others,
-                                    _sil_model(others, [kk for j, kk in enumerate(keyframes) if j != k], rims, cfg), cfg)
+                        **{**icp_kw, "dist0": 0.015}, **deg_kw_for("refine"))
                 if _good(r, cfg):
                     _place_keyframe(kf, r.X_WO, carver)
             model = _model_from(keyframes, cfg.model_voxel)
     if cfg.final_pass:
-        if "final" in sil_st:
-            sil_Q = _sil_model(model, keyframes, rims, cfg)
         for i in range(1, N):
             o = obs[i]
             if len(o.P_W) < cfg.min_points:
@@ -561,26 +489,16 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             n_feat[i, 1] = 0 if fW is None else len(fW)
             r = icp(o.P_W, start, model.tree, model.Q, model.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=o.N_W,
                     **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters},
-                    **{**deg_kw_for("final"), **col_kw("final", o.C, model)})
-            if "final" in sil_st and _good(r, cfg):
-                r = _sil_refine(session, i, o.P_W, r, model, sil_Q, cfg)
+                    **deg_kw_for("final"))
             X[i], frac[i], rmse[i] = r.X_WO, r.inlier_frac, r.rmse
             tracked[i] = _good(r, cfg)
             if i % 20 == 0:
                 _report(progress, 0.62 + 0.18 * i / N, f"final registration {i}/{N}")
-        if cfg.final_neighbors:
-            _final_from_neighbors(session, obs, X, tracked, frac, rmse, model, cfg, icp_kw)
-        if cfg.resettle_path and any(ld.adopted for ld in landings):  # fall frames off the tipping path
-            _resettle_path(session, obs, X, tracked, frac, rmse, model, keyframes, landings, cfg)
         if cfg.regauge_frame0:
             from dataclasses import replace as _replace
 
             o0 = observe(session, 0, _replace(cfg, max_points=cfg.regauge_points), rng)  # dense: one frame sets O
-            sil0 = None
-            if "final" in sil_st:  # frame 0 registered like the others, or their silhouette shift becomes an offset
-                def sil0(r: IcpResult, m: ObjectModel) -> IcpResult:
-                    return _sil_refine(session, 0, o0.P_W, r, m, _sil_model(m, keyframes, rims, cfg), cfg)
-            model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw, obs, tracked, session, sil0)
+            model = _regauge(o0, X, model, keyframes, carver, cfg, icp_kw, obs, tracked, session)
         if cfg.resettle_flush_deg > 0 and landings:  # the settled stretch flush with the table, re-registered (after the
             # gauge: the base the object stood on is -z in the final O)
             model = _resettle_flush(session, obs, X, tracked, frac, rmse, keyframes, carver, landings, cfg) or model
@@ -594,36 +512,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             _level_lying(X, model, spin, session.table_height, cfg)
     X = interpolate_untracked(X, tracked)
     return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings, tilt)
-
-
-def _final_from_neighbors(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
-                          rmse: np.ndarray, model: ObjectModel, cfg: TrackingConfig, icp_kw: dict) -> None:
-    """Second start for the final registration of frames whose neighbours' final poses differ from theirs by more
-    than ``final_nb_deg`` / ``final_nb_dist`` (fast turns: a landing frame whose tracking-loop start lagged): the
-    registration from the neighbour's pose replaces the frame's when it fits better (inlier fraction, residual) and
-    is consistent with the table and the frame's own free space (``resettle.pose_consistent``). Neighbour poses
-    are those of the final pass (not updated during this sweep). Updates X, tracked, frac, rmse in place."""
-    X0 = X.copy()
-    Q = model.Q[:: max(1, len(model.Q) // 4000)]
-    for i in range(1, len(obs)):
-        o = obs[i]
-        if len(o.P_W) < cfg.min_points:
-            continue
-        starts = [X0[j] for j in (i - 1, i + 1) if 0 < j < len(obs) and tracked[j]
-                  and any(np.array(pose_distance(X0[i], X0[j])) > (cfg.final_nb_dist, cfg.final_nb_deg))]
-        if not starts:
-            continue
-        ok = _consistent_in(session, i, Q, cfg)
-        cur = IcpResult(X[i], frac[i], rmse[i], 0, np.zeros(0))
-        cur_ok = ok(X[i])
-        for Xs in starts:
-            r = icp(o.P_W, Xs, model.tree, model.Q, model.N, N_src=o.N_W,
-                    **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
-            r_ok = _good(r, cfg) and ok(r.X_WO)
-            if r_ok and (not cur_ok or _better(r, cur)):
-                cur, cur_ok = r, True
-        X[i], frac[i], rmse[i] = cur.X_WO, cur.inlier_frac, cur.rmse
-        tracked[i] = _good(cur, cfg)
 
 
 def _consistent_in(session, j: int, Q: np.ndarray, cfg: TrackingConfig) -> Callable[[np.ndarray], bool]:
@@ -690,7 +578,7 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
         carver.indices = [carver.indices[k] for k in idx]
     X_OW = X_inv(Xj)
     keyframes.append(Keyframe(i, Xj.copy(), o.P_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W, o.N_W,
-                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W, o.C))
+                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W))
     if carver is not None:
         carver.add(i, session.depth(i), Xj)
     model = _model_from(keyframes, cfg.model_voxel)
@@ -758,74 +646,6 @@ def _resettle_refine(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
                 _place_keyframe(kf, T @ kf.X_WO, carver)
         moved = True
     return _model_from(keyframes, cfg.model_voxel) if moved else None
-
-
-def _tip_poses(session, X: np.ndarray, a: int, i: int, pre: list[Keyframe],
-               cfg: TrackingConfig) -> tuple[np.ndarray, list[np.ndarray]] | None:
-    """The tipping motion between the last tracked frame a before a fall and the settled frame i: the leading bottom
-    edge's point (``resettle.leading_pivot``, in W, m: the base of frame 0's footprint placed at X[a], at its extent
-    along the tipping direction, on the table) and the poses X_WO of the turn X[a] → X[i] about it
-    (``resettle.tip_path``, every ``resettle_path_step_deg``); None when ``_fall_base`` finds no tipping direction."""
-    from service.tracking.resettle import leading_pivot, tip_path
-
-    fall = _fall_base(session, X[a], X[i], X[0], pre, cfg)
-    if fall is None:
-        return None
-    f, turn, B = fall
-    pivot = leading_pivot(B @ X[a][:3, :3].T + X[a][:3, 3], f, session.table_height)
-    path = tip_path(X[a], X[i], pivot)
-    n = max(2, int(np.ceil(np.degrees(turn) / cfg.resettle_path_step_deg)))
-    return pivot, [path(k / n) for k in range(n + 1)]
-
-
-def _resettle_path(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
-                   rmse: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], landings: list,
-                   cfg: TrackingConfig) -> list[tuple[int, float, float, bool]]:
-    """The fall's frames of every adopted topple join checked against the tipping motion the physics implies
-    (``resettle.tip_path``): between the last tracked frame a before the fall and the settled frame i the object
-    turns about its leading bottom edge (``resettle.leading_pivot``: the base of frame 0's footprint, placed at X[a],
-    at its extent along the tipping direction, on the table). A frame whose pose is lost, inconsistent with the table
-    or its own free space (``resettle.pose_consistent``), or more than ``resettle_path_deg`` / ``resettle_path_dist``
-    from the nearest pose of the path takes the path's pose (every ``resettle_path_step_deg`` of the turn) that its
-    points fit best among the consistent ones (``resettle.path_fit``); it counts as tracked when that pose is a good
-    registration (inlier fraction, residual). Updates X, tracked, frac, rmse in place; returns per checked frame
-    (index, rotation and translation from the path, replaced)."""
-    from service.tracking.geometry import icp_result
-    from service.tracking.resettle import path_distance, path_fit
-
-    Q = model.Q[:: max(1, len(model.Q) // 4000)]
-    out = []
-    for ld in landings:
-        if not ld.adopted:
-            continue
-        i = ld.i
-        before = [j for j in range(ld.g0) if tracked[j]]
-        pre = [kf for kf in keyframes if kf.index < ld.g0]
-        if not before or not pre or not tracked[i]:
-            continue
-        a = before[-1]
-        tip = _tip_poses(session, X, a, i, pre, cfg)
-        if tip is None:
-            continue
-        _, poses = tip
-        for j in range(a + 1, i):
-            o = obs[j]
-            if len(o.P_W) < cfg.min_points:
-                continue
-            ok = _consistent_in(session, j, Q, cfg)
-            d_rot, d_t, _ = path_distance(X[j], poses)
-            if tracked[j] and d_rot <= cfg.resettle_path_deg and d_t <= cfg.resettle_path_dist and ok(X[j]):
-                out.append((j, d_rot, d_t, False))
-                continue
-            fit = path_fit(o.P_W, poses, model.tree, cfg.inlier_dist, ok)
-            if fit is None:
-                out.append((j, d_rot, d_t, False))
-                continue
-            r = icp_result(X_inv(poses[fit[0]]), o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist)
-            X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse
-            tracked[j] = _good(r, cfg)
-            out.append((j, d_rot, d_t, True))
-    return out
 
 
 def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,
@@ -942,10 +762,6 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
                  long_votes=cfg.spin_graph_long_votes)
     if cfg.spin_fall and cfg.spin_solver == "mixed":  # the mixed estimate, no spin in topples
         res = _spin_fall(feats, X, model, cfg, common, graph)
-    elif cfg.spin_solver == "graph":  # joint estimate over frame pairs (spin.spin_graph)
-        from service.tracking.spin import spin_graph
-
-        res = spin_graph(feats, X, model.Q, model.N, min_votes=cfg.spin_graph_votes, **common, **graph)
     elif cfg.spin_solver == "mixed":  # the chain, the graph's increments over fast stretches (spin.spin_mixed)
         from service.tracking.spin import spin_mixed
 
@@ -1010,12 +826,12 @@ def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConf
 
 def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], carver: "FreeSpace | None",
              cfg: TrackingConfig, icp_kw: dict, obs: list[FrameObs] | None = None,
-             tracked: np.ndarray | None = None, session=None, sil: Callable | None = None) -> ObjectModel:
+             tracked: np.ndarray | None = None, session=None) -> ObjectModel:
     """Register frame 0 to the final model like every other frame (pose X̂_0 of the model frame M) and move
     the body frame so that X_WO(0) keeps its definition X_0 (identity rotation, centroid origin):
     X_WO(i) ← X_WO(i) D with D = X̂_0⁻¹ X_0 = X_MO, model and keyframe points p_O = D⁻¹ p_M. Otherwise a
     mismatch between frame 0's own points and the merged model of all keyframes would be an offset common to
-    all other frames. ``sil``: the silhouette refinement of the final pass, applied to frame 0 too.
+    all other frames.
     Updates X, keyframes and carver in place; returns the model in the new frame.
     With ``gauge_loo`` frame 0 is registered to the model without keyframe 0, with ``gauge_frames`` X̂_0 is the
     robust mean over frame 0 and the frames at rest before the robot reaches the object (``service.tracking.gauge``)."""
@@ -1024,8 +840,6 @@ def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Ke
     reg = _model_from(keyframes[1:], cfg.model_voxel) if cfg.gauge_loo and len(keyframes) > 2 else model
     r = icp(o0.P_W, X[0], reg.tree, reg.Q, reg.N, N_src=o0.N_W,
             **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
-    if sil is not None and _good(r, cfg):
-        r = sil(r, model)  # silhouette term (sil_stages "final"), as for the other frames
     X0_hat = r.X_WO if _good(r, cfg) else None
     if cfg.gauge_frames > 0 and obs is not None and tracked is not None and session is not None:
         X0_hat = _gauge_from_early(session, X0_hat, X, obs, tracked, model, cfg)
@@ -1087,7 +901,7 @@ def _model_from(keyframes: list[Keyframe], voxel: float) -> ObjectModel:
     for kf in keyframes:
         R_OW = kf.X_WO[:3, :3].T
         parts.append((kf.P_O, kf.N_W @ R_OW.T))
-    return ObjectModel.build(voxel, parts, [kf.C for kf in keyframes])
+    return ObjectModel.build(voxel, parts)
 
 
 def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: list[Keyframe], lost: bool
@@ -1156,69 +970,6 @@ def _kf_features(kp_W: np.ndarray, desc: np.ndarray | None, X_WO: np.ndarray, ke
     if dt > 0.03 or da > 30.0:
         return None, None
     return fW[inl], fO[inl]
-
-
-def _rim(session, i: int, cfg: TrackingConfig) -> np.ndarray:
-    """Rim points (W) of frame i for the silhouette model (``silhouette.rim_points``); none with sil_rim off."""
-    from service.tracking.silhouette import rim_points
-
-    if not cfg.sil_rim:
-        return np.zeros((0, 3))
-    P = rim_points(session.depth(i), session.mask(i), session.K, session.X_WC, cfg.erode_px, session.table_height,
-                   cfg.table_clearance)
-    return P[~near_effector(session, i, P, cfg)]
-
-
-def _sil_model(model: ObjectModel, keyframes: list[Keyframe], rims: dict[int, np.ndarray],
-               cfg: TrackingConfig) -> np.ndarray:
-    """Points (O) whose projections the silhouette term tests: the model plus the keyframes' rim points."""
-    from service.tracking.silhouette import model_points
-
-    parts = [model.Q]
-    for kf in keyframes:
-        R = rims.get(kf.index)
-        if R is not None and len(R):
-            X_OW = X_inv(kf.X_WO)
-            parts.append(R @ X_OW[:3, :3].T + X_OW[:3, 3])
-    Q = model_points(parts, cfg.model_voxel, cfg.sil_points)
-    if cfg.sil_model_smooth > 0:  # scattered like one reading, the points of a correct model lie in front of it
-        from service.tracking.silhouette import smooth_points
-
-        Q = smooth_points(Q, cfg.sil_model_smooth)
-    return Q
-
-
-def _sil_refine(session, i: int, P_W: np.ndarray, r: IcpResult, model: ObjectModel, sil_Q: np.ndarray,
-                cfg: TrackingConfig) -> IcpResult:
-    """ICP result r of frame i refined with the silhouette term (``silhouette.refine``); r when the refined pose
-    fails the lost-track test, moved more than sil_max_step / sil_max_step_deg from r or lost more than
-    sil_max_inlier_loss of its inlier fraction."""
-    from service.tracking.silhouette import make_view, refine
-
-    view = make_view(session.depth(i), session.mask(i), session.K, session.X_WC, jump=cfg.edge_jump,
-                     pad=int(np.ceil(cfg.sil_max_px)) + 4, front_smooth_px=cfg.sil_front_smooth_px)
-    if not _sil_needed(sil_Q, r, view, cfg):
-        return r
-    out = refine(P_W, r.X_WO, model.tree, model.Q, model.N, sil_Q, view, iters=cfg.sil_iters, dist=cfg.icp_dist_min,
-                 inlier_dist=cfg.inlier_dist, w_sil=cfg.w_sil, tol_px=cfg.sil_tol_px, occ_margin=cfg.sil_occ_margin,
-                 huber_px=cfg.sil_huber_px, max_px=cfg.sil_max_px, w_front=cfg.sil_w_front,
-                 front_margin=cfg.sil_front_margin, weak_ratio=cfg.sil_weak_ratio, weak_len=cfg.sil_weak_len)
-    dt, da = pose_distance(r.X_WO, out.X_WO)
-    if not _good(out, cfg) or dt > cfg.sil_max_step or da > cfg.sil_max_step_deg \
-            or out.inlier_frac < r.inlier_frac - cfg.sil_max_inlier_loss:
-        return r  # a correction of a few millimetres is what the term is for: a larger move is a misfit
-    return out
-
-
-def _sil_needed(sil_Q: np.ndarray, r: IcpResult, view, cfg: TrackingConfig) -> bool:
-    """Whether the silhouette refinement runs on a frame (sil_gate_frac > 0): at least that fraction of the model
-    points projecting onto the frame's object readings lie more than sil_gate_margin in front of them."""
-    if cfg.sil_gate_frac <= 0:
-        return True
-    from service.tracking.silhouette import front_violations
-
-    n_v, n = front_violations(sil_Q, X_inv(r.X_WO), view, cfg.sil_gate_margin)
-    return n > 0 and n_v >= cfg.sil_gate_frac * n
 
 
 def interpolate_untracked(X_WO: np.ndarray, tracked: np.ndarray) -> np.ndarray:

@@ -11,9 +11,7 @@ from service.sdf.types import SdfConfig, SdfGrid
 from service.session.types import Session
 
 
-_STAGES = {"degen_stages": frozenset({"track", "ba", "refine", "final"}),
-           "color_stages": frozenset({"track", "refine", "final"}),
-           "sil_stages": frozenset({"track", "refine", "final"})}
+_STAGES = {"degen_stages": frozenset({"track", "ba", "refine", "final"})}
 
 
 @dataclass(frozen=True)
@@ -123,15 +121,6 @@ class TrackingConfig:
     w_feat_degen: float = 0.0  # off: no gain measured on the bottle/egg sessions (docs/tracking.md)
     degen_stages: str = "track,ba,refine,final"  # where: tracking loop, bundle adjustment, leave-one-out, final pass
     degen_tau: float = 0.02  # normalised eigenvalue below which a direction counts as weak (1/3: fully constrained)
-    # colour along the weak directions (geometry.color_gradients; Park, Zhou & Koltun 2017): per model point an
-    # intensity and its tangent-plane gradient, the photometric residual projected on the same weak directions
-    w_color: float = 0.0  # weight (m² per squared intensity unit; 0: off)
-    color_stages: str = "track,refine,final"  # where: tracking loop, leave-one-out rounds, final pass
-    color_tau: float = 0.1  # its weak-direction threshold (a lying bottle seen from one side: roll λ̂ ≈ 0.01–0.03)
-    color_rot_only: bool = False  # only the weak directions that are rotations (not a box face's sliding)
-    color_huber: float = 0.05  # Huber threshold of the intensity residual (intensity in [0, 1])
-    color_mode: str = "chroma"  # "gray": luma; "chroma": r, g chromaticities (unchanged by Lambert shading)
-    color_blur_px: float = 1.0  # Gaussian σ (px) of the grey image the point intensities are read from
     ba_huber: float = 0.002  # Huber threshold of its point-to-plane residuals
     ba_w_feat: float = 0.3  # weight of its feature terms
     final_pass: bool = True  # re-register every frame against the final model
@@ -200,72 +189,30 @@ class TrackingConfig:
     gauge_ee_margin: float = 0.02
     gauge_loo: bool = False
     # the table and the frame's free space as a test of a pose (resettle.pose_consistent; the fall's frames registered
-    # backwards from an adopted join, final_neighbors, resettle_path): a pose whose model lies more than
+    # backwards from an adopted join): a pose whose model lies more than
     # landing_table_margin below the table (over landing_table_frac of its points) or covers pixels where the frame
     # sees through it is inconsistent
     landing_table_margin: float = 0.01
     landing_table_frac: float = 0.02
     landing_seen_frac: float = 0.05  # ... or more of its points where the frame's depth reading lies behind them
-    # final pass: frames whose neighbours' final poses differ by more than final_nb_deg / final_nb_dist are also
-    # registered from those poses; the better consistent fit wins (tracker._final_from_neighbors)
-    final_neighbors: bool = False
-    final_nb_deg: float = 2.0
-    final_nb_dist: float = 0.005
-    # the band behind each object ray ends where another view saw the point in front of its own reading (free space
-    # or the far side of a thin wall), else keeps trunc (service.sdf.evidence_band; visible.band_depth)
-    sdf_band_evidence: bool = False
-    sdf_band_margin: float = 0.002  # m: a view contradicts the band only beyond its reading + this
-    sdf_band_px: int = 1  # min filter (pixels) of the views' depth, so that silhouettes do not count
-    sdf_band_frames: int = 0  # evenly spread tracked frames whose views limit the band (0: the SDF's frames)
+    sdf_band_px: int = 1  # min filter (pixels) of the views' depth for sdf_drop_contradicted (silhouettes do not count)
+    sdf_band_frames: int = 0  # evenly spread tracked frames whose views test the readings (0: the SDF's frames)
     # object rays whose point sdf_contradict_views of the SDF's frames saw in front of their own reading by more than
     # sdf_contradict_margin (min filter sdf_band_px) are dropped (visible.drop_contradicted; flying pixels,
     # misregistered edges; with w_empty 300: 12 evaluation sessions 0.2-1.3 mm better, egg 707 +0.06, docs/tracking.md)
     sdf_drop_contradicted: bool = True
     sdf_contradict_margin: float = 0.005
     sdf_contradict_views: int = 3  # ... by at least this many frames
-    # silhouette term (service.tracking.silhouette): model points (plus the keyframes' rim points) must project
-    # inside the object mask or behind an occluder; after ICP a few Gauss-Newton steps of point-to-plane plus this
-    # term, in the stages of sil_stages (0: off). It constrains the sliding along the edge of the only faces seen
-    w_sil: float = 0.0  # weight per silhouette residual (m), relative to one point-to-plane term
-    sil_stages: str = "track,final"  # tracking loop, final pass (frame 0 included), leave-one-out rounds ("refine":
-    # pushed the keyframes 2-3 mm away from the camera on strike session 511)
-    sil_tol_px: float = 0.0  # a point may lie this far (px) outside the mask's outline without cost
-    sil_occ_margin: float = 0.005  # a reading this much (m) in front of a point hides it (occluder, robot)
-    sil_huber_px: float = 1.0  # Huber threshold (px)
-    sil_max_px: float = 8.0  # points farther outside are ignored (model noise, gross misfit)
-    sil_iters: int = 3  # Gauss-Newton iterations
-    sil_points: int = 4000  # model points projected (even stride beyond)
-    sil_rim: bool = True  # keyframes' rim points (the ring the erosion removed, depth consistent) join them
-    sil_w_front: float = 1.0  # free-space part: a model point projecting inside the mask must not lie in front of the
-    # object's reading there (weight per residual; 0: silhouette only)
-    sil_front_margin: float = 0.002  # ... by more than this (m): depth noise
-    sil_max_step: float = 0.006  # a refined pose farther than this (m) or
-    sil_max_step_deg: float = 2.0  # turned more than this from the ICP pose, or whose inlier fraction fell by more
-    sil_max_inlier_loss: float = 0.03  # than this, is not taken (none 511 without these bounds: a 90° flip)
     # a topple's fall (resettle.find_fall): its last fast step turns more than settle_fast_deg per frame, the fall
     # starts where the steps turn more than settle_fall_deg per frame
     settle_fast_deg: float = 8.0
     settle_fall_deg: float = 2.0
-    # safeguards of the silhouette term (w_sil > 0; 0: not used; all off, docs/tracking.md "Why the free-space term
-    # hurts"): it acts only along the directions the depth leaves weak (eigenvalues of the point-to-plane Hessian,
-    # rotation scaled by sil_weak_len, below sil_weak_ratio x the largest; none: the ICP pose is kept), and only in
-    # frames where at least sil_gate_frac of the model points projecting onto object readings lie more than
-    # sil_gate_margin (m) in front of them (free space violated)
-    sil_weak_ratio: float = 0.0
-    sil_weak_len: float = 0.05
-    sil_gate_frac: float = 0.0
-    sil_gate_margin: float = 0.004
-    sil_front_smooth_px: int = 0  # free-space reading averaged over (2k+1)^2 continuous pixels (0: the pixel's own)
-    sil_model_smooth: float = 0.0  # the term's model points moved onto the plane of their neighbours within this (m)
-    # (model points scatter like one reading: 20-30 % of a correctly placed model lay > 2 mm in front of the reading)
-
-    # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames),
-    # "graph" (spin.spin_graph: a one-parameter pose graph over frame pairs: spin_graph_short links to the nearest
-    # earlier frames, plus longer links only between frames whose views differ by less than spin_graph_gate_deg and
-    # by at most spin_graph_rate_deg per frame between them; links need spin_graph_votes votes; alone: bottle topple
-    # 704 17.3° -> 6.4° median but bottle pivot 711's worst frame 7.2° -> 9.2°, "Joint spin estimate") or "mixed"
-    # (default; spin.spin_mixed: the chain, with the graph's increments over fast stretches where the chain has few
-    # votes: 704 17.3°/22.0° -> 5.2°/7.9°, 707, 708, 711 within 0.05° median; docs/tracking.md "Mixed spin estimate")
+    # spin closure solver: "chain" (each frame's pooled votes against frame 0 and earlier corrected frames) or "mixed"
+    # (default; spin.spin_mixed: the chain, with the increments of a one-parameter pose graph over frame pairs —
+    # spin.spin_links, solve_spin_graph: spin_graph_short links to the nearest earlier frames, plus longer links only
+    # between frames whose views differ by less than spin_graph_gate_deg and by at most spin_graph_rate_deg per frame
+    # between them; links need spin_graph_votes votes — over fast stretches where the chain has few votes: 704
+    # 17.3°/22.0° -> 5.2°/7.9°, 707, 708, 711 within 0.05° median; docs/tracking.md "Mixed spin estimate")
     spin_solver: str = "mixed"
     spin_graph_gate_deg: float = 10.0
     spin_graph_rate_deg: float = 0.5  # 0: no rate test
@@ -351,14 +298,6 @@ class TrackingConfig:
     spin_fall_min_deg: float = 45.0
     spin_fall_edge_deg: float = 1.0
     spin_fall_tol_deg: float = 3.0
-    # the fall's frames of an adopted join checked against the tipping motion (tracker._resettle_path,
-    # resettle.tip_path): a frame lost, inconsistent, or more than resettle_path_deg / resettle_path_dist from the
-    # turn about the leading bottom edge between the last pose before the fall and the join takes the path's pose
-    # (every resettle_path_step_deg) its points fit best among those consistent with the table and its free space
-    resettle_path: bool = False  # on: development 820 worst 22.3 -> 3.7 deg; evaluation 710 6.05 -> 5.87 deg, 6.50 -> 8.76 mm
-    resettle_path_deg: float = 5.0
-    resettle_path_dist: float = 0.02
-    resettle_path_step_deg: float = 1.0
     # the leading face made perpendicular to the base the object stood on at frame 0 when its fitted normal is within
     # resettle_square_deg of that (resettle.landing_pose; 0: off)
     resettle_square_deg: float = 0.0  # 5: development 820 join 1.42 -> 0.55 deg, median 1.99 -> 1.26 deg
@@ -408,21 +347,14 @@ class TrackingConfig:
         for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
             if f.type in ("bool", bool) and not isinstance(getattr(self, f.name), (bool, np.bool_)):
                 raise ValueError(f"TrackingConfig.{f.name} must be true or false, not {getattr(self, f.name)!r}")
-        if self.color_mode not in ("gray", "chroma"):
-            raise ValueError(f"TrackingConfig.color_mode must be 'gray' or 'chroma', not {self.color_mode!r}")
         self.stage_set("degen_stages")
-        self.stage_set("color_stages")
-        self.stage_set("sil_stages")
-        for name in ("w_feat_degen", "w_color", "max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
+        for name in ("w_feat_degen", "max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
                      "spin_border_px", "spin_tol", "spin_inlier_deg", "kf_still_rate_deg", "kf_still_max_frames",
                      "crease_dist", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
-                     "landing_table_margin", "landing_table_frac", "landing_seen_frac",
-                     "final_nb_deg", "final_nb_dist", "w_sil", "sil_tol_px", "sil_occ_margin", "sil_huber_px",
-                     "sil_max_px", "sil_iters", "sil_w_front", "sil_front_margin", "sil_max_step",
-                     "sil_max_step_deg", "sil_max_inlier_loss"):
+                     "landing_table_margin", "landing_table_frac", "landing_seen_frac"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
-        for name in ("spin_features", "spin_min_votes", "spin_smooth", "sil_points"):
+        for name in ("spin_features", "spin_min_votes", "spin_smooth"):
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
 
@@ -432,8 +364,8 @@ class TrackingConfig:
         if self.spin_profile not in ("off", "mixed", "multi", "always"):
             raise ValueError("TrackingConfig.spin_profile must be 'off', 'mixed', 'multi' or 'always', "
                              f"not {self.spin_profile!r}")
-        if self.spin_solver not in ("chain", "graph", "mixed"):
-            raise ValueError(f"TrackingConfig.spin_solver must be 'chain', 'graph' or 'mixed', not {self.spin_solver!r}")
+        if self.spin_solver not in ("chain", "mixed"):
+            raise ValueError(f"TrackingConfig.spin_solver must be 'chain' or 'mixed', not {self.spin_solver!r}")
         if not self.spin_mixed_rate_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_mixed_rate_deg must be >= 0, not {self.spin_mixed_rate_deg!r}")
         if not self.spin_mixed_span >= 1:
@@ -452,7 +384,7 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not self.spin_max_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
-        for name in ("sdf_band_margin", "sdf_band_px", "sdf_band_frames", "sdf_contradict_margin"):
+        for name in ("sdf_band_px", "sdf_band_frames", "sdf_contradict_margin"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not self.sdf_contradict_views >= 1:
@@ -460,12 +392,6 @@ class TrackingConfig:
         for name in ("settle_fast_deg", "settle_fall_deg"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
-        for name in ("sil_weak_ratio", "sil_gate_frac", "sil_gate_margin", "sil_front_smooth_px",
-                     "sil_model_smooth"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
-        if not self.sil_weak_len > 0:
-            raise ValueError(f"TrackingConfig.sil_weak_len must be > 0, not {self.sil_weak_len!r}")
         for name in ("mask_trim_px", "mask_trim_iters", "mask_trim_deep_px"):
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
@@ -487,9 +413,6 @@ class TrackingConfig:
         for name in ("resettle_flush_deg", "resettle_flush_square_deg"):
             if not 0.0 <= getattr(self, name) < 90.0:
                 raise ValueError(f"TrackingConfig.{name} must be in [0, 90), not {getattr(self, name)!r}")
-        for name in ("resettle_path_deg", "resettle_path_dist", "resettle_path_step_deg"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"TrackingConfig.{name} must be > 0, not {getattr(self, name)!r}")
         if not (isinstance(self.resettle_refine_frames, int) and self.resettle_refine_frames >= 0):
             raise ValueError(f"TrackingConfig.resettle_refine_frames must be an int >= 0, not {self.resettle_refine_frames!r}")
         if not (isinstance(self.sdf_support_open_dilate, int) and self.sdf_support_open_dilate >= 0):
@@ -511,7 +434,7 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_arc_tau must be in [0, 1), not {self.spin_arc_tau!r}")
 
     def stage_set(self, name: str) -> frozenset[str]:
-        """The stages named by ``degen_stages``, ``color_stages`` or ``sil_stages`` (comma-separated; ValueError for
+        """The stages named by ``degen_stages`` (comma-separated; ValueError for
         an unknown one)."""
         allowed = _STAGES[name]
         got = frozenset(x.strip() for x in getattr(self, name).split(",") if x.strip())

@@ -16,8 +16,7 @@ seen into from above), and not at all when most of what it adds is so (``sdf_sup
 
 Other views' evidence: ``drop_contradicted`` (``sdf_drop_contradicted``) drops the object rays whose surface point
 another of the frames saw in front of its own reading (``service.sdf.contradicted_readings``: flying pixels,
-misregistered edges); ``band_depth`` (``sdf_band_evidence``) gives the thickness behind each reading that other
-frames measured (``service.sdf.evidence_band``), for ``fit_sdf(band_back=...)``.
+misregistered edges).
 
 V: vertices of the convex hull of the visible mesh plus ``visible_samples`` area-uniform samples on the hull,
 kept when, in at least one checked frame, the point projects inside the object mask with observed depth
@@ -232,15 +231,6 @@ def carved_init(rays: RaySet, sdf_cfg, carver, value: float, support_O: np.ndarr
 def _views(session, X_WO: np.ndarray, frames: np.ndarray) -> list:
     X_CW = X_inv(session.X_WC)
     return [(session.K, X_CW @ X_WO[int(i)], session.depth(int(i))) for i in frames]
-
-
-def band_depth(session, X_WO: np.ndarray, frames: np.ndarray, rays: RaySet, cfg) -> np.ndarray:
-    """(R,) thickness of the object behind each ray of ``rays`` (m, ∞ = unknown): ``service.sdf.evidence_band``
-    with the views of ``frames`` (tracked poses X_WO), for ``fit_sdf(band_back=...)`` (``sdf_band_evidence``)."""
-    from service.sdf import evidence_band
-
-    return evidence_band(rays, _views(session, X_WO, frames), cfg.sdf.trunc, margin=cfg.sdf_band_margin,
-                         px=cfg.sdf_band_px)
 
 
 def drop_contradicted(session, X_WO: np.ndarray, frames: np.ndarray, rays: RaySet, cfg) -> RaySet:

@@ -1,7 +1,7 @@
 """Grouping points by voxel, as ``np.unique(key, axis=0)`` and ``np.add.at`` do it, about ten times faster.
 
-The object model (``tracker.ObjectModel.build``) and the silhouette model (``silhouette.model_points``) average the
-points falling in each voxel of edge h: integer keys k = ⌊p / h⌋ (N,3), groups in lexicographic order of the keys.
+The object model (``tracker.ObjectModel.build``) averages the points falling in each voxel of edge h: integer keys
+k = ⌊p / h⌋ (N,3), groups in lexicographic order of the keys.
 Sorting rows (``np.unique(axis=0)``) costs ~10x sorting one int64 column, and the model is rebuilt often (every new
 keyframe, each leave-one-out refinement). With k' = k − min(k) ≥ 0 and e = max(k') + 1 per axis, the code
 c = (k'_x e_y + k'_y) e_z + k'_z is a bijection onto integers that preserves the lexicographic order, so

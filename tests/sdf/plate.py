@@ -1,5 +1,6 @@
 """A slab x in [0, t], |y|, |z| <= 3 cm, seen along ±x by two 40×40 cameras 25 cm away: its rays, views and
-thickness measure, shared by the tests of the band behind a reading (``trunc_back``, ``evidence_band``)."""
+thickness measure, shared by the tests of the band behind a reading (``trunc_back``)
+and of the readings other views saw through (``contradicted_readings``)."""
 
 import numpy as np
 

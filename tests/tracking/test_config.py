@@ -9,15 +9,12 @@ from service.tracking import TrackingConfig
 
 def test_defaults_and_fast_are_valid():
     assert TrackingConfig().stage_set("degen_stages") == {"track", "ba", "refine", "final"}
-    assert TrackingConfig.fast().stage_set("color_stages") == {"track", "refine", "final"}
+    assert TrackingConfig.fast().stage_set("degen_stages") == {"track", "ba", "refine", "final"}
     assert replace(TrackingConfig(), degen_stages="").stage_set("degen_stages") == set()
 
 
 @pytest.mark.parametrize("change, words", [
     ({"degen_stages": "track,bundle"}, ["degen_stages", "bundle"]),
-    ({"color_stages": "track,ba"}, ["color_stages", "ba"]),  # the colour term has no bundle-adjustment stage
-    ({"color_mode": "rgb"}, ["color_mode", "rgb"]),
-    ({"w_color": -0.1}, ["w_color"]),
     ({"max_rate_deg": float("nan")}, ["max_rate_deg"]),
 ])
 def test_bad_settings_are_refused_with_the_field_named(change, words):

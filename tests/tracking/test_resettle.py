@@ -3,8 +3,7 @@
 import numpy as np
 
 from service.tracking.resettle import (base_points, base_shift, face_offsets, find_fall, landing_pose,
-                                      leading_pivot, path_distance, path_fit, pose_consistent, reach_along,
-                                      rest_offsets, tip_path)
+                                      pose_consistent, reach_along, rest_offsets)
 from service.transforms import X_inv, make_X, pose_distance, se3_exp, se3_log, so3_exp
 
 SIZE = np.array([0.07, 0.07, 0.185])  # a milk carton standing, its centre at the origin of O
@@ -160,40 +159,6 @@ def test_refine_frames_validated():
     assert TrackingConfig().resettle_refine_frames >= 0
     with pytest.raises(ValueError, match="resettle_refine_frames"):
         TrackingConfig(resettle_refine_frames=-1)
-
-
-def test_fall_frame_found_on_the_tipping_path():
-    from scipy.spatial import cKDTree
-
-    table = 0.0
-    X_r = make_X(np.eye(3), np.array([0.4, 0.1, table + SIZE[2] / 2]))
-    truth = settled_truth(X_r, table)
-    slid = truth.copy()
-    slid[1, 3] += 0.01  # the landing slides 1 cm beyond the pure turn
-    Q, Nq = box_faces()
-    B = base_points(Q, X_r, table, inset=0.0)
-    pivot = leading_pivot(B @ X_r[:3, :3].T + X_r[:3, 3], np.array([0.0, 1.0, 0.0]), table)
-    assert np.allclose(pivot, [0.4, 0.1 + SIZE[1] / 2, table], atol=0.004)
-    path = tip_path(X_r, slid, pivot)
-    assert pose_distance(path(0.0), X_r)[0] < 1e-9 and pose_distance(path(1.0), slid)[0] < 1e-9
-    # half way: 45° about the edge, the slide half done
-    R = so3_exp(np.array([-1.0, 0.0, 0.0]) * np.pi / 4)
-    mid = make_X(R, pivot + R @ (X_r[:3, 3] - pivot) + np.array([0.0, 0.005, 0.0]))
-    assert pose_distance(path(0.5), mid)[0] < 0.003 and pose_distance(path(0.5), mid)[1] < 0.5
-    # a frame seeing a few points of the box at 30° of the turn: the path pose its points fit is found
-    poses = [path(k / 90) for k in range(91)]
-    k_true = 30
-    rng = np.random.default_rng(5)
-    sel = rng.choice(len(Q), 150, replace=False)
-    P_W = Q[sel] @ poses[k_true][:3, :3].T + poses[k_true][:3, 3] + rng.normal(0, 0.001, (150, 3))
-    k, frac = path_fit(P_W, poses, cKDTree(Q), 0.008, lambda X: True)
-    assert abs(k - k_true) <= 1 and frac > 0.9
-    # poses excluded by the consistency test are never chosen; a pose 20° off the path is far from it
-    k2, _ = path_fit(P_W, poses, cKDTree(Q), 0.008, lambda X: pose_distance(X, poses[k_true])[1] > 3.0)
-    assert abs(k2 - k_true) > 2
-    off = poses[k_true] @ make_X(so3_exp(np.array([0.0, 0.0, np.radians(20.0)])), np.zeros(3))
-    assert path_distance(off, poses)[0] > 15.0
-    assert path_distance(poses[40], poses)[:2] == (0.0, 0.0)
 
 
 def test_rest_offsets_of_a_pose_not_lying_on_the_face():
