@@ -15,11 +15,6 @@ registration for large data sets"; the global pose-graph refinement of BundleSDF
 point-to-plane and feature terms in place of its learned ones). Keyframe 0 is not perturbed, which removes the
 gauge freedom; a weak prior w_prior·N_k·‖[ℓ·Log(R_k R_k,0ᵀ), t_k − R_k R_k,0ᵀ t_k,0]‖² toward the tracked poses
 (ℓ = 0.1 m) holds directions that no overlap constrains (a keyframe that sees a single plane).
-Weak directions (``w_feat_degen``): for a pair (a, b) with point-to-plane normal matrix H_ab (in the relative
-motion δ_b − δ_a), ``geometry.degenerate_map`` gives M restricting a term to the eigen-directions of the
-unit-consistent H_ab with small normalised eigenvalue (Zhang, Kaess & Singh 2016); the pair's RANSAC-accepted
-feature residuals then enter as ∂e/∂δ_b = J_f M, ∂e/∂δ_a ≈ −J_f M (weight w_feat_degen × the pair's point
-count / its feature count), i.e. only where the shape says nothing (the roll of a body of revolution).
 """
 
 from __future__ import annotations
@@ -29,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from service.tracking.geometry import _cross, _exp_se3, degenerate_map, orthonormalize, ransac_rigid
+from service.tracking.geometry import _cross, _exp_se3, orthonormalize, ransac_rigid
 
 
 @dataclass
@@ -67,8 +62,6 @@ def bundle_adjust(
     w_point: float = 0.05,
     max_points: int = 600,
     w_prior: float = 0.01,
-    w_feat_degen: float = 0.0,
-    degen_tau: float = 0.02,
     rng: np.random.Generator | None = None,
 ) -> BAResult:
     """Jointly refine keyframe poses X_OW (K,4,4) from their points P_W[k] (N_k,3) and normals N_W[k] in W.
@@ -108,7 +101,6 @@ def bundle_adjust(
         g = np.zeros(D)
         tot, nres = 0.0, 0
         n_pairs = 0
-        pair_geo = {}  # (a, b) -> (point-to-plane normal matrix, weight sum, points) for the weak directions
         for a in range(K):
             if trees[a] is None:
                 continue
@@ -133,7 +125,6 @@ def bundle_adjust(
                 J = np.hstack([_cross(p, nq), nq])  # ∂r/∂δ_b; ∂r/∂δ_a = −J
                 Hb = (J * w[:, None]).T @ J
                 gb = (J * w[:, None]).T @ r
-                pair_geo[(a, b)] = (Hb, float(w.sum()), p)
                 if w_point > 0:  # small point-to-point term against sliding along planes
                     e = p - q
                     Jp = np.concatenate([-_skew(p), np.broadcast_to(np.eye(3), (m, 3, 3))], 2)  # (m,3,6)
@@ -142,7 +133,7 @@ def bundle_adjust(
                 _add_pair(H, g, a, b, Hb, gb)
         # feature correspondences (Cauchy)
         for (a, b), (A_W, B_W) in feats.items():
-            if len(A_W) < 6 or (w_feat <= 0 and w_feat_degen <= 0):
+            if len(A_W) < 6 or w_feat <= 0:
                 continue
             qa = A_W @ X[a][:3, :3].T + X[a][:3, 3]
             pb = B_W @ X[b][:3, :3].T + X[b][:3, 3]
@@ -154,18 +145,6 @@ def bundle_adjust(
             rr = np.linalg.norm(e, axis=1)
             wf = 1.0 / (1.0 + (rr / feat_scale) ** 2)
             Jb = np.concatenate([-_skew(pb), np.broadcast_to(np.eye(3), (len(pb), 3, 3))], 2)
-            geo = pair_geo.get((a, b))
-            if w_feat_degen > 0 and geo is not None:
-                # only along the pair's weak directions (relative motion δ_b − δ_a; ∂e/∂δ_a ≈ −∂e/∂δ_b)
-                M = degenerate_map(geo[0], geo[1], geo[2], degen_tau)
-                if M is not None:
-                    JbM = Jb @ M
-                    lamd = w_feat_degen * len(geo[2]) / len(pb)
-                    Hd = lamd * np.einsum("nki,nkj->ij", JbM * wf[:, None, None], JbM)
-                    gd = lamd * np.einsum("nki,nk->i", JbM * wf[:, None, None], e)
-                    _add_pair(H, g, a, b, Hd, gd)
-            if w_feat <= 0:
-                continue
             lamf = w_feat * 20.0  # a feature counts as about this many point-to-plane residuals times w_feat
             tot += float(lamf * np.sum(0.5 * feat_scale**2 * np.log1p((rr / feat_scale) ** 2)))
             Ja = np.concatenate([_skew(qa), -np.broadcast_to(np.eye(3), (len(pb), 3, 3))], 2)

@@ -29,11 +29,7 @@ the base the object stood on (``resettle_square_deg``, off), a join near a track
 adopted too (``resettle_rest_deg``, off). After the gauge, the settled stretch of every landing checked is laid
 flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
 registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
-Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
-normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
-or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
-``degen_stages``: tracking loop, bundle adjustment pairs, leave-one-out rounds, final pass); on well-conditioned
-shapes they add nothing. ORB keypoints can be taken only ``feat_border_px`` inside the mask: keypoints whose
+ORB keypoints can be taken only ``feat_border_px`` inside the mask: keypoints whose
 patch reaches the silhouette or an occluder edge follow the image outline rather than the surface (the limb of
 a rolling bottle stays in place) and pull the estimated motion toward zero.
 Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast
@@ -299,7 +295,7 @@ class TrackResult:
     keyframes: list[Keyframe]
     carver: FreeSpace | None = None
     kf_log: list[dict] = field(default_factory=list)  # per keyframe candidate: index, far, new_frac, added, accepted
-    n_feat: np.ndarray | None = None  # (N,2) feature correspondences used per frame: tracking, final pass
+    n_feat: np.ndarray | None = None  # (N,2) feature correspondences used per frame: tracking, final pass (none: 0)
     spin: "SpinResult | None" = None  # spin closure of a body of revolution (cfg.spin_closure)
     landings: list = field(default_factory=list)  # resettle.Landing of
     # every topple landing joined (cfg.resettle: X_new the join; score_old / score_new the fractions of the pre-fall
@@ -360,14 +356,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
 
     icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist,
                   normal_cos=cfg.icp_normal_cos)
-    stages = cfg.stage_set("degen_stages")
-
-    def deg_kw_for(stage: str) -> dict:
-        return dict(w_feat_degen=cfg.w_feat_degen if stage in stages else 0.0, degen_tau=cfg.degen_tau)
-
-    deg_kw = deg_kw_for("track")
     n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
-    frng = np.random.default_rng(cfg.seed + 1)  # RANSACs of the keyframe features (own stream: rng unchanged)
     landings: list = []  # resettle.Landing of every topple landing checked (cfg.resettle)
     for i in range(1, N):
         o = observe(session, i, cfg, rng)
@@ -397,8 +386,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 dt, da = pose_distance(best.X_WO, Xc)
                 if dt < 0.01 and da < 5.0:
                     continue  # this start converges to the pose already found
-            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw,
-                    **deg_kw)
+            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw)
             if _better(r, best):
                 best = r
         if a != i - 1 and not _good(best, cfg):
@@ -472,10 +460,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             for k in range(1, len(keyframes)):
                 others = _model_from([kf for j, kf in enumerate(keyframes) if j != k], cfg.model_voxel)
                 kf = keyframes[k]
-                fW, fO = _kf_features(kf.kp_W, kf.desc, kf.X_WO, [kk for j, kk in enumerate(keyframes) if j != k],
-                                      cfg, frng) if "refine" in stages else (None, None)
-                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=kf.N_W,
-                        **{**icp_kw, "dist0": 0.015}, **deg_kw_for("refine"))
+                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, N_src=kf.N_W, **{**icp_kw, "dist0": 0.015})
                 if _good(r, cfg):
                     _place_keyframe(kf, r.X_WO, carver)
             model = _model_from(keyframes, cfg.model_voxel)
@@ -485,11 +470,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             if len(o.P_W) < cfg.min_points:
                 continue
             start = X[i]
-            fW, fO = _kf_features(o.kp_W, o.desc, start, keyframes, cfg, frng) if "final" in stages else (None, None)
-            n_feat[i, 1] = 0 if fW is None else len(fW)
-            r = icp(o.P_W, start, model.tree, model.Q, model.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=o.N_W,
-                    **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters},
-                    **deg_kw_for("final"))
+            r = icp(o.P_W, start, model.tree, model.Q, model.N, N_src=o.N_W,
+                    **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
             X[i], frac[i], rmse[i] = r.X_WO, r.inlier_frac, r.rmse
             tracked[i] = _good(r, cfg)
             if i % 20 == 0:
@@ -876,8 +858,7 @@ def _bundle_adjust(keyframes: list[Keyframe], cfg: TrackingConfig, rng: np.rando
     from service.tracking.posegraph import bundle_adjust
 
     feats = {}
-    ba_degen = cfg.w_feat_degen if "ba" in cfg.stage_set("degen_stages") else 0.0
-    if cfg.ba_features or ba_degen > 0:
+    if cfg.ba_features:
         for a in range(len(keyframes)):
             for b in range(a + 1, len(keyframes)):
                 ka, kb = keyframes[a], keyframes[b]
@@ -887,7 +868,7 @@ def _bundle_adjust(keyframes: list[Keyframe], cfg: TrackingConfig, rng: np.rando
     X_OW = np.stack([X_inv(kf.X_WO) for kf in keyframes])
     res = bundle_adjust(X_OW, [kf.P_W for kf in keyframes], [kf.N_W for kf in keyframes], feats,
                         iters=cfg.ba_iters, huber=cfg.ba_huber, w_feat=cfg.ba_w_feat if cfg.ba_features else 0.0,
-                        w_feat_degen=ba_degen, degen_tau=cfg.degen_tau, rng=rng)
+                        rng=rng)
     for kf, X_ow in zip(keyframes[1:], res.X_OW[1:]):
         kf.X_WO = X_inv(X_ow)
         kf.P_O = kf.P_W @ X_ow[:3, :3].T + X_ow[:3, 3]
@@ -939,37 +920,6 @@ def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np
         if Xr is not None:
             return Xr, inl
     return ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
-
-
-def _kf_features(kp_W: np.ndarray, desc: np.ndarray | None, X_WO: np.ndarray, keyframes: list[Keyframe],
-                 cfg: TrackingConfig, rng: np.random.Generator, n_kf: int = 3
-                 ) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """3-D feature correspondences (point in W, same point in O) of one view against the ``n_kf`` keyframes
-    closest in orientation to X_WO, kept when a RANSAC rigid fit accepts them and its pose agrees with X_WO
-    within 30° / 3 cm (the weak direction is the one they must fix; a gross disagreement is a wrong fit).
-    (None, None) when features are off or fewer than 6 survive."""
-    if cfg.w_feat_degen <= 0 or desc is None or len(kp_W) < 6 or not keyframes:
-        return None, None
-    ang = [pose_distance(kf.X_WO, X_WO)[1] for kf in keyframes]
-    A, B = [], []
-    for j in np.argsort(ang)[:n_kf]:
-        kf = keyframes[j]
-        m = _match(desc, kf.desc)
-        if len(m):
-            A.append(kp_W[m[:, 0]])
-            B.append(kf.kp_O[m[:, 1]])
-    if not A:
-        return None, None
-    fW, fO = np.concatenate(A), np.concatenate(B)
-    if len(fW) < 6:
-        return None, None
-    Xr, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng)
-    if Xr is None or inl.sum() < 6:
-        return None, None
-    dt, da = pose_distance(X_inv(Xr), X_WO)
-    if dt > 0.03 or da > 30.0:
-        return None, None
-    return fW[inl], fO[inl]
 
 
 def interpolate_untracked(X_WO: np.ndarray, tracked: np.ndarray) -> np.ndarray:

@@ -11,9 +11,6 @@ from service.sdf.types import SdfConfig, SdfGrid
 from service.session.types import Session
 
 
-_STAGES = {"degen_stages": frozenset({"track", "ba", "refine", "final"})}
-
-
 @dataclass(frozen=True)
 class TrackingInputs:
     session: Session
@@ -115,12 +112,6 @@ class TrackingConfig:
     ba_iters: int = 10  # keyframe bundle adjustment (service.tracking.posegraph) iterations (0: off)
     ba_features: bool = False  # ORB matches between keyframes enter the bundle adjustment (off: features at depth
     # edges biased it; textureless styrofoam 706: 0.98° median with them, 0.59° without)
-    # appearance along the shape's weak directions (geometry.degenerate_map; Zhang, Kaess & Singh 2016): 3-D ORB
-    # correspondences constrain only the directions the point-to-plane terms leave free (roll of a body of
-    # revolution), in tracking, bundle adjustment, leave-one-out rounds and the final pass (0: off)
-    w_feat_degen: float = 0.0  # off: no gain measured on the bottle/egg sessions (docs/tracking.md)
-    degen_stages: str = "track,ba,refine,final"  # where: tracking loop, bundle adjustment, leave-one-out, final pass
-    degen_tau: float = 0.02  # normalised eigenvalue below which a direction counts as weak (1/3: fully constrained)
     ba_huber: float = 0.002  # Huber threshold of its point-to-plane residuals
     ba_w_feat: float = 0.3  # weight of its feature terms
     final_pass: bool = True  # re-register every frame against the final model
@@ -347,8 +338,7 @@ class TrackingConfig:
         for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
             if f.type in ("bool", bool) and not isinstance(getattr(self, f.name), (bool, np.bool_)):
                 raise ValueError(f"TrackingConfig.{f.name} must be true or false, not {getattr(self, f.name)!r}")
-        self.stage_set("degen_stages")
-        for name in ("w_feat_degen", "max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
+        for name in ("max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
                      "spin_border_px", "spin_tol", "spin_inlier_deg", "kf_still_rate_deg", "kf_still_max_frames",
                      "crease_dist", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
                      "landing_table_margin", "landing_table_frac", "landing_seen_frac"):
@@ -432,16 +422,6 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.lie_level_margin must be >= 0, not {self.lie_level_margin!r}")
         if not 0 <= self.spin_arc_tau < 1:
             raise ValueError(f"TrackingConfig.spin_arc_tau must be in [0, 1), not {self.spin_arc_tau!r}")
-
-    def stage_set(self, name: str) -> frozenset[str]:
-        """The stages named by ``degen_stages`` (comma-separated; ValueError for
-        an unknown one)."""
-        allowed = _STAGES[name]
-        got = frozenset(x.strip() for x in getattr(self, name).split(",") if x.strip())
-        if not got <= allowed:
-            raise ValueError(f"TrackingConfig.{name}: unknown stage(s) {sorted(got - allowed)}; "
-                             f"expected a comma-separated subset of {sorted(allowed)}")
-        return got
 
     @classmethod
     def fast(cls) -> "TrackingConfig":
