@@ -14,7 +14,7 @@ Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth,
 5. keyframes: a well-tracked frame far (angle/translation) from every keyframe or showing new surface adds
    its points (those within grow_dist of the model, which rejects mask noise) to the model.
 Drift is bounded by (a) frame-to-model rather than frame-to-frame registration, (b) a bundle adjustment of
-all keyframe poses (``service.tracking.posegraph``: robust point-to-plane and ORB feature terms between every
+all keyframe poses (``service.tracking.posegraph``: robust point-to-plane terms between every
 pair of overlapping keyframes, keyframe 0 fixed), followed by leave-one-out refinement (each
 keyframe re-registered to the model of all the others), (c) a final pass registering every frame to the
 refined model, and (d) frame 0 registered to that model as well, the body frame moved by the constant offset
@@ -857,18 +857,9 @@ def _bundle_adjust(keyframes: list[Keyframe], cfg: TrackingConfig, rng: np.rando
     """Joint refinement of the keyframe poses (``service.tracking.posegraph``); keyframe 0 stays fixed."""
     from service.tracking.posegraph import bundle_adjust
 
-    feats = {}
-    if cfg.ba_features:
-        for a in range(len(keyframes)):
-            for b in range(a + 1, len(keyframes)):
-                ka, kb = keyframes[a], keyframes[b]
-                m = _match(ka.desc, kb.desc)
-                if len(m) >= 6 and ka.kp_W is not None and kb.kp_W is not None:
-                    feats[(a, b)] = (ka.kp_W[m[:, 0]], kb.kp_W[m[:, 1]])
     X_OW = np.stack([X_inv(kf.X_WO) for kf in keyframes])
-    res = bundle_adjust(X_OW, [kf.P_W for kf in keyframes], [kf.N_W for kf in keyframes], feats,
-                        iters=cfg.ba_iters, huber=cfg.ba_huber, w_feat=cfg.ba_w_feat if cfg.ba_features else 0.0,
-                        rng=rng)
+    res = bundle_adjust(X_OW, [kf.P_W for kf in keyframes], [kf.N_W for kf in keyframes],
+                        iters=cfg.ba_iters, huber=cfg.ba_huber, rng=rng)
     for kf, X_ow in zip(keyframes[1:], res.X_OW[1:]):
         kf.X_WO = X_inv(X_ow)
         kf.P_O = kf.P_W @ X_ow[:3, :3].T + X_ow[:3, 3]

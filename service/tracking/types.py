@@ -110,10 +110,7 @@ class TrackingConfig:
     grow_dist: float = 0.015  # points farther than this from the model are not added (mask noise)
     refine_rounds: int = 2  # leave-one-out keyframe refinement rounds after the bundle adjustment (0: off)
     ba_iters: int = 10  # keyframe bundle adjustment (service.tracking.posegraph) iterations (0: off)
-    ba_features: bool = False  # ORB matches between keyframes enter the bundle adjustment (off: features at depth
-    # edges biased it; textureless styrofoam 706: 0.98° median with them, 0.59° without)
     ba_huber: float = 0.002  # Huber threshold of its point-to-plane residuals
-    ba_w_feat: float = 0.3  # weight of its feature terms
     final_pass: bool = True  # re-register every frame against the final model
     final_iters: int = 6
     regauge_frame0: bool = True  # frame 0 registered to the final model too; O moved so X_WO(0) keeps its definition
