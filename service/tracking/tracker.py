@@ -815,12 +815,11 @@ def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Ke
     mismatch between frame 0's own points and the merged model of all keyframes would be an offset common to
     all other frames.
     Updates X, keyframes and carver in place; returns the model in the new frame.
-    With ``gauge_loo`` frame 0 is registered to the model without keyframe 0, with ``gauge_frames`` X̂_0 is the
-    robust mean over frame 0 and the frames at rest before the robot reaches the object (``service.tracking.gauge``)."""
+    With ``gauge_frames`` X̂_0 is the robust mean over frame 0 and the frames at rest before the robot reaches the
+    object (``service.tracking.gauge``)."""
     if len(o0.P_W) < cfg.min_points:
         return model
-    reg = _model_from(keyframes[1:], cfg.model_voxel) if cfg.gauge_loo and len(keyframes) > 2 else model
-    r = icp(o0.P_W, X[0], reg.tree, reg.Q, reg.N, N_src=o0.N_W,
+    r = icp(o0.P_W, X[0], model.tree, model.Q, model.N, N_src=o0.N_W,
             **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
     X0_hat = r.X_WO if _good(r, cfg) else None
     if cfg.gauge_frames > 0 and obs is not None and tracked is not None and session is not None:

@@ -169,13 +169,12 @@ class TrackingConfig:
     # gauge of the body frame (service.tracking.gauge): X̂_0 = robust mean of frame 0's registration to the final
     # model and of the final poses of up to gauge_frames frames at rest — before the end effector comes within
     # ee_radius + gauge_ee_margin of the model, within gauge_max_deg / gauge_max_dist of frame 0 (0: frame 0 alone;
-    # no robot data: frame 0 alone); gauge_loo: frame 0 registered to the model without keyframe 0 (its own points).
+    # no robot data: frame 0 alone).
     # On: l_block 702 2.72° / 5.40° -> 1.59° / 4.04°, no material loss elsewhere (docs/tracking.md, "Worst frames")
     gauge_frames: int = 30
     gauge_max_deg: float = 5.0
     gauge_max_dist: float = 0.01
     gauge_ee_margin: float = 0.02
-    gauge_loo: bool = False
     # the table and the frame's free space as a test of a pose (resettle.pose_consistent; the fall's frames registered
     # backwards from an adopted join): a pose whose model lies more than
     # landing_table_margin below the table (over landing_table_frac of its points) or covers pixels where the frame
