@@ -158,7 +158,6 @@ class TrackingConfig:
     # (visible.carved_init; the mug's mouth and cavity: 708 4.73 -> 3.99 mm, the others unchanged, docs/tracking.md)
     sdf_carve_init: bool = True
     sdf_carve_value: float = 0.005  # S (m) given to those voxels
-    sdf_drop_flying: bool = False  # no object rays at depth jumps inside the mask (flying pixels; edge_jump test)
     # spin closure: axis of a model whose weak rotations mix (an egg) refitted to its radius profile ("mixed"),
     # every axis so ("always") or none ("off"); "multi": as "mixed", the refit started from every rotation eigen-axis
     # too (spin.profile_starts), the best profile fit kept (egg 707 6.91 -> 6.82 deg median, 30.39 -> 28.44 worst; the
