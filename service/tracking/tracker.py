@@ -29,9 +29,6 @@ the base the object stood on (``resettle_square_deg``, off), a join near a track
 adopted too (``resettle_rest_deg``, off). After the gauge, the settled stretch of every landing checked is laid
 flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
 registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
-ORB keypoints can be taken only ``feat_border_px`` inside the mask: keypoints whose
-patch reaches the silhouette or an occluder edge follow the image outline rather than the surface (the limb of
-a rolling bottle stays in place) and pull the estimated motion toward zero.
 Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast
 on the face it rests on (``kf_still_speed``, ``_defer_keyframe``); edge points, whose normals blend two faces, are
 dropped (``crease_dist``, ``geometry.crease_points``) and ICP pairs need compatible normals (``icp_normal_cos``).
@@ -156,12 +153,7 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
     gray = None  # the grey image, converted once for the ORB features and the spin closure's
     if cfg.features and n_mask > 0:
         gray = cv2.cvtColor(session.rgb(i), cv2.COLOR_RGB2GRAY)
-        if cfg.feat_border_px > 0:  # keypoints whose patch reaches the silhouette or an occluder edge move with
-            # the image outline, not with the surface (a rolling body's limb stays put): detect well inside the mask
-            k = 2 * cfg.feat_border_px + 1
-            fm = cv2.erode(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))) * 255
-        else:
-            fm = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) * 255
+        fm = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) * 255  # the mask dilated by 1 px
         orb = cv2.ORB_create(nfeatures=cfg.n_features, scaleFactor=1.2, nlevels=4, edgeThreshold=9, patchSize=15,
                              fastThreshold=7)
         kps, des = orb.detectAndCompute(gray, fm)

@@ -70,8 +70,6 @@ class TrackingConfig:
     # model (wrong pose or clutter in the mask): it neither becomes a keyframe nor supervises the SDF
     features: bool = True  # ORB features inside the mask for the coarse motion
     n_features: int = 400
-    feat_border_px: int = 0  # ORB keypoints at least this far inside the object mask (0: the mask dilated by 1 px;
-    # 8 helped the bottle development session and hurt the evaluation sessions, docs/tracking.md)
     # registration
     icp_iters: int = 12
     icp_dist0: float = 0.03  # initial correspondence radius
