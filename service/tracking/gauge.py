@@ -16,9 +16,6 @@ pushed; sessions without robot data: none) and within ``gauge_max_deg`` / ``gaug
     X̂_0 = robust mean of {X̂_0 (frame 0's registration), X̂_j (rest frames)}:
     rotation R̄ = R_ref Exp(median_j Log(R_refᵀ R_j)) (median per component of the tangent vectors about the first),
     translation the component-wise median.
-
-With ``gauge_loo`` frame 0 is registered to the model without keyframe 0 (which holds frame 0's own points and
-noise); measured worse on 802 (0.61° → 0.81°), kept as an option.
 """
 
 from __future__ import annotations

@@ -11,14 +11,11 @@
   correspondences), with nearest neighbours inside a shrinking radius (optionally only pairs whose normals agree,
   n_p·n_q > ``normal_cos``); X_OW ← Exp(δ) X_OW.
 - Degeneracy (Zhang, Kaess & Singh 2016, "On degeneracy of optimization-based state estimation problems"):
-  the point-to-plane normal matrix H = Σ w JᵀJ, J = [p × n, n], is made unit-consistent with z = Dδ,
-  D = diag(L, L, L, 1, 1, 1) (L = RMS radius of the matched points: a rotation counts as the arc it moves them),
-  H_z = D⁻¹ H D⁻¹ = U Λ Uᵀ, and each eigenvalue is normalised by Σ w (λ̂ ≈ 1/3 for a direction every point
-  constrains). Directions with λ̂ < τ are (partly) unobservable from the shape: rotation of a body of revolution
-  about its axis, sliding along a plane or an extrusion. ``degenerate_map`` returns M = D⁻¹ U diag(s) Uᵀ D with
-  s_i = clip(1 − λ̂_i/τ, 0, 1); appearance terms (3-D feature correspondences, Jacobian J_f) enter the normal
-  equations as Mᵀ J_fᵀ J_f M and Mᵀ J_fᵀ e, i.e. only along the weak directions, so that on well-conditioned
-  shapes their biases (keypoints at depth and texture edges) do not enter at all.
+  the point-to-plane normal matrix H = Σ JᵀJ, J = [p × n, n], is made unit-consistent with z = Dδ,
+  D = diag(L, L, L, 1, 1, 1) (L = RMS radius of the points: a rotation counts as the arc it moves them),
+  H_z = D⁻¹ H D⁻¹, and its eigenvalues are normalised by the point count (λ̂ ≈ 1/3 for a direction every point
+  constrains). Directions with λ̂ ≪ 1/3 are (partly) unobservable from the shape: rotation of a body of
+  revolution about its axis, sliding along a plane or an extrusion.
 """
 
 from __future__ import annotations
@@ -162,16 +159,13 @@ def icp(
     feat_W: np.ndarray | None = None,
     feat_O: np.ndarray | None = None,
     w_feat: float = 0.3,
-    w_feat_degen: float = 0.0,
-    degen_tau: float = 0.02,
     N_src: np.ndarray | None = None,
     normal_cos: float = 0.0,
 ) -> IcpResult:
     """Register points P_W (N,3) to the model (Q_O, N_O) (M,3) with KD-tree ``tree`` over Q_O, from X_WO.
 
     Optional feature correspondences feat_W (F,3) ↔ feat_O (F,3) enter as point-to-point terms: with weight
-    ``w_feat`` (relative to the point set) in all six directions, and with ``w_feat_degen`` only along the
-    directions the point-to-plane terms leave unconstrained (``degenerate_map``, threshold ``degen_tau``)."""
+    ``w_feat`` (relative to the point set) in all six directions."""
     X_OW = np.linalg.inv(X_WO)
     huber = 0.5 * dist_min
     decay = (dist_min / dist0) ** (1.0 / max(iters - 1, 1))
@@ -193,7 +187,6 @@ def icp(
         w = np.where(np.abs(r) < huber, 1.0, huber / np.maximum(np.abs(r), 1e-12))
         Hm = (Jp * w[:, None]).T @ Jp
         g = (Jp * w[:, None]).T @ r
-        Mdeg = degenerate_map(Hm, w.sum(), p, degen_tau) if (nf >= 3 and w_feat_degen > 0) else None
         # point-to-point (against sliding on planes): residual p − q, J = [−[p]×, I]
         if w_point > 0 and len(p):
             Hm += w_point * _pt_H(p)
@@ -207,10 +200,6 @@ def icp(
             if w_feat > 0:
                 Hm += lam * _pt_H(pf, wf)
                 g += lam * _pt_g(pf, e, wf)
-            if Mdeg is not None:
-                lam_d = w_feat_degen * max(len(p), 1) / nf
-                Hm += lam_d * Mdeg.T @ _pt_H(pf, wf) @ Mdeg
-                g += lam_d * Mdeg.T @ _pt_g(pf, e, wf)
         Hm += 1e-9 * np.eye(6) * max(len(p), 1)
         delta = -np.linalg.lstsq(Hm, g, rcond=1e-10)[0]
         if not np.all(np.isfinite(delta)):
@@ -242,21 +231,6 @@ def icp_result(X_OW: np.ndarray, P_W: np.ndarray, tree, Q_O: np.ndarray, N_O: np
         n_inliers=int(inl.sum()),
         nn_dist=np.where(np.isfinite(d), d, np.inf),
     )
-
-
-def degenerate_map(H: np.ndarray, wsum: float, p: np.ndarray, tau: float) -> np.ndarray | None:
-    """M (6,6) restricting a term to the weak directions of the point-to-plane normal matrix H (6,6) of the points
-    p (N,3) with total weight wsum (module docstring); None when no direction is weak."""
-    if len(p) < 6 or wsum <= 0:
-        return None
-    L = float(np.sqrt(np.mean(np.sum((p - p.mean(0)) ** 2, 1)))) or 1.0
-    Di = np.diag([1 / L, 1 / L, 1 / L, 1.0, 1.0, 1.0])
-    lam, U = np.linalg.eigh(Di @ H @ Di)
-    s = np.clip(1.0 - lam / wsum / tau, 0.0, 1.0)
-    if not np.any(s > 0):
-        return None
-    D = np.diag([L, L, L, 1.0, 1.0, 1.0])
-    return Di @ (U * s) @ U.T @ D
 
 
 def degeneracy(P_O: np.ndarray, N_O: np.ndarray) -> np.ndarray:

@@ -4,22 +4,16 @@ Unknowns: X_OW^k of keyframes k = 1..K−1 (keyframe 0 is fixed: it defines O). 
 p^k (N_k,3) with normals n^k observed in W; in O they are P^k = X_OW^k p^k. For every ordered pair (a, b) of
 keyframes whose point sets overlap, nearest neighbours q ∈ P^a of the points p ∈ P^b within a shrinking
 radius (normals compatible) give point-to-plane residuals
-    r = n_q · (p − q),
-and, optionally, ORB matches between the two keyframes that agree with the current poses (RANSAC in O) give
-point-to-point residuals e = p_f − q_f. With small motions applied in O, X_OW^k ← Exp(δ_k) X_OW^k, δ_k = [ω_k, τ_k]:
-    ∂r/∂δ_b = [p × n, n],  ∂r/∂δ_a = −[p × n, n];   ∂e/∂δ_b = [−[p_f]×, I],  ∂e/∂δ_a = [[q_f]×, −I].
-The robust cost Σ ρ_H(r) + λ_f Σ ρ_C(‖e‖) (Huber for the planes, Cauchy for the features) is minimised by
+    r = n_q · (p − q).
+With small motions applied in O, X_OW^k ← Exp(δ_k) X_OW^k, δ_k = [ω_k, τ_k]:
+    ∂r/∂δ_b = [p × n, n],  ∂r/∂δ_a = −[p × n, n].
+The robust cost Σ ρ_H(r) (Huber) is minimised by
 iteratively reweighted Gauss–Newton with Levenberg damping on the stacked δ (6(K−1) unknowns, dense normal
 equations), correspondences re-found at every outer iteration (multi-view ICP; Pulli 1999, "Multiview
 registration for large data sets"; the global pose-graph refinement of BundleSDF, Wen et al. 2023, with
-point-to-plane and feature terms in place of its learned ones). Keyframe 0 is not perturbed, which removes the
+point-to-plane terms in place of its learned ones). Keyframe 0 is not perturbed, which removes the
 gauge freedom; a weak prior w_prior·N_k·‖[ℓ·Log(R_k R_k,0ᵀ), t_k − R_k R_k,0ᵀ t_k,0]‖² toward the tracked poses
 (ℓ = 0.1 m) holds directions that no overlap constrains (a keyframe that sees a single plane).
-Weak directions (``w_feat_degen``): for a pair (a, b) with point-to-plane normal matrix H_ab (in the relative
-motion δ_b − δ_a), ``geometry.degenerate_map`` gives M restricting a term to the eigen-directions of the
-unit-consistent H_ab with small normalised eigenvalue (Zhang, Kaess & Singh 2016); the pair's RANSAC-accepted
-feature residuals then enter as ∂e/∂δ_b = J_f M, ∂e/∂δ_a ≈ −J_f M (weight w_feat_degen × the pair's point
-count / its feature count), i.e. only where the shape says nothing (the roll of a body of revolution).
 """
 
 from __future__ import annotations
@@ -29,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from service.tracking.geometry import _cross, _exp_se3, degenerate_map, orthonormalize, ransac_rigid
+from service.tracking.geometry import _cross, _exp_se3, orthonormalize
 
 
 @dataclass
@@ -53,7 +47,6 @@ def bundle_adjust(
     X_OW: np.ndarray,
     P_W: list[np.ndarray],
     N_W: list[np.ndarray],
-    feats: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] | None = None,
     *,
     iters: int = 10,
     dist0: float = 0.012,
@@ -62,19 +55,14 @@ def bundle_adjust(
     min_overlap: float = 0.1,
     min_pairs_pts: int = 30,
     normal_cos: float = 0.7,
-    w_feat: float = 0.3,
-    feat_scale: float = 0.005,
     w_point: float = 0.05,
     max_points: int = 600,
     w_prior: float = 0.01,
-    w_feat_degen: float = 0.0,
-    degen_tau: float = 0.02,
     rng: np.random.Generator | None = None,
 ) -> BAResult:
     """Jointly refine keyframe poses X_OW (K,4,4) from their points P_W[k] (N_k,3) and normals N_W[k] in W.
 
-    ``feats[(a, b)] = (A_W, B_W)``: (F,3) 3-D ORB correspondences, A_W seen in keyframe a, B_W in keyframe b
-    (the same physical points, both in W). Pairs overlap when at least ``min_overlap`` of the smaller set has a
+    Pairs overlap when at least ``min_overlap`` of the smaller set has a
     neighbour within the current radius."""
     rng = rng or np.random.default_rng(0)
     K = len(X_OW)
@@ -90,7 +78,6 @@ def bundle_adjust(
             p, n = p[s], n[s]
         P.append(np.asarray(p, float))
         Nn.append(np.asarray(n, float))
-    feats = feats or {}
     decay = (dist_min / dist0) ** (1.0 / max(iters - 1, 1))
     cost0 = cost = 0.0
     n_pairs = 0
@@ -108,7 +95,6 @@ def bundle_adjust(
         g = np.zeros(D)
         tot, nres = 0.0, 0
         n_pairs = 0
-        pair_geo = {}  # (a, b) -> (point-to-plane normal matrix, weight sum, points) for the weak directions
         for a in range(K):
             if trees[a] is None:
                 continue
@@ -133,51 +119,12 @@ def bundle_adjust(
                 J = np.hstack([_cross(p, nq), nq])  # ∂r/∂δ_b; ∂r/∂δ_a = −J
                 Hb = (J * w[:, None]).T @ J
                 gb = (J * w[:, None]).T @ r
-                pair_geo[(a, b)] = (Hb, float(w.sum()), p)
                 if w_point > 0:  # small point-to-point term against sliding along planes
                     e = p - q
                     Jp = np.concatenate([-_skew(p), np.broadcast_to(np.eye(3), (m, 3, 3))], 2)  # (m,3,6)
                     Hb = Hb + w_point * np.einsum("nki,nkj->ij", Jp, Jp)
                     gb = gb + w_point * np.einsum("nki,nk->i", Jp, e)
                 _add_pair(H, g, a, b, Hb, gb)
-        # feature correspondences (Cauchy)
-        for (a, b), (A_W, B_W) in feats.items():
-            if len(A_W) < 6 or (w_feat <= 0 and w_feat_degen <= 0):
-                continue
-            qa = A_W @ X[a][:3, :3].T + X[a][:3, 3]
-            pb = B_W @ X[b][:3, :3].T + X[b][:3, 3]
-            Xr, inl = ransac_rigid(pb, qa, max(2 * thr, 0.008), iters=60, rng=rng)
-            if Xr is None or inl.sum() < 6:
-                continue
-            pb, qa = pb[inl], qa[inl]
-            e = pb - qa
-            rr = np.linalg.norm(e, axis=1)
-            wf = 1.0 / (1.0 + (rr / feat_scale) ** 2)
-            Jb = np.concatenate([-_skew(pb), np.broadcast_to(np.eye(3), (len(pb), 3, 3))], 2)
-            geo = pair_geo.get((a, b))
-            if w_feat_degen > 0 and geo is not None:
-                # only along the pair's weak directions (relative motion δ_b − δ_a; ∂e/∂δ_a ≈ −∂e/∂δ_b)
-                M = degenerate_map(geo[0], geo[1], geo[2], degen_tau)
-                if M is not None:
-                    JbM = Jb @ M
-                    lamd = w_feat_degen * len(geo[2]) / len(pb)
-                    Hd = lamd * np.einsum("nki,nkj->ij", JbM * wf[:, None, None], JbM)
-                    gd = lamd * np.einsum("nki,nk->i", JbM * wf[:, None, None], e)
-                    _add_pair(H, g, a, b, Hd, gd)
-            if w_feat <= 0:
-                continue
-            lamf = w_feat * 20.0  # a feature counts as about this many point-to-plane residuals times w_feat
-            tot += float(lamf * np.sum(0.5 * feat_scale**2 * np.log1p((rr / feat_scale) ** 2)))
-            Ja = np.concatenate([_skew(qa), -np.broadcast_to(np.eye(3), (len(pb), 3, 3))], 2)
-            Jw = Jb * wf[:, None, None]
-            Jaw = Ja * wf[:, None, None]
-            ia, ib = slice(6 * a, 6 * a + 6), slice(6 * b, 6 * b + 6)
-            H[ib, ib] += lamf * np.einsum("nki,nkj->ij", Jw, Jb)
-            H[ia, ia] += lamf * np.einsum("nki,nkj->ij", Jaw, Ja)
-            H[ia, ib] += lamf * np.einsum("nki,nkj->ij", Jaw, Jb)
-            H[ib, ia] += lamf * np.einsum("nki,nkj->ij", Jw, Ja)
-            g[ib] += lamf * np.einsum("nki,nk->i", Jw, e)
-            g[ia] += lamf * np.einsum("nki,nk->i", Jaw, e)
         # weak prior toward the starting poses: keeps directions that no overlap constrains (a keyframe seeing
         # one plane only) where tracking put them; residual [ℓ·Log(R R0ᵀ), t − R R0ᵀ t0], ℓ = 0.1 m
         for k in range(1, K):

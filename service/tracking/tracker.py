@@ -14,7 +14,7 @@ Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth,
 5. keyframes: a well-tracked frame far (angle/translation) from every keyframe or showing new surface adds
    its points (those within grow_dist of the model, which rejects mask noise) to the model.
 Drift is bounded by (a) frame-to-model rather than frame-to-frame registration, (b) a bundle adjustment of
-all keyframe poses (``service.tracking.posegraph``: robust point-to-plane and ORB feature terms between every
+all keyframe poses (``service.tracking.posegraph``: robust point-to-plane terms between every
 pair of overlapping keyframes, keyframe 0 fixed), followed by leave-one-out refinement (each
 keyframe re-registered to the model of all the others), (c) a final pass registering every frame to the
 refined model, and (d) frame 0 registered to that model as well, the body frame moved by the constant offset
@@ -29,13 +29,6 @@ the base the object stood on (``resettle_square_deg``, off), a join near a track
 adopted too (``resettle_rest_deg``, off). After the gauge, the settled stretch of every landing checked is laid
 flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
 registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
-Shape-degenerate directions (``geometry.degenerate_map``; Zhang, Kaess & Singh 2016): when the point-to-plane
-normal matrix of a registration has weak eigen-directions (a body of revolution turning about its axis, a plane
-or extrusion sliding), 3-D ORB correspondences are added restricted to those directions (``w_feat_degen``,
-``degen_stages``: tracking loop, bundle adjustment pairs, leave-one-out rounds, final pass); on well-conditioned
-shapes they add nothing. ORB keypoints can be taken only ``feat_border_px`` inside the mask: keypoints whose
-patch reaches the silhouette or an occluder edge follow the image outline rather than the surface (the limb of
-a rolling bottle stays in place) and pull the estimated motion toward zero.
 Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast
 on the face it rests on (``kf_still_speed``, ``_defer_keyframe``); edge points, whose normals blend two faces, are
 dropped (``crease_dist``, ``geometry.crease_points``) and ICP pairs need compatible normals (``icp_normal_cos``).
@@ -160,12 +153,7 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
     gray = None  # the grey image, converted once for the ORB features and the spin closure's
     if cfg.features and n_mask > 0:
         gray = cv2.cvtColor(session.rgb(i), cv2.COLOR_RGB2GRAY)
-        if cfg.feat_border_px > 0:  # keypoints whose patch reaches the silhouette or an occluder edge move with
-            # the image outline, not with the surface (a rolling body's limb stays put): detect well inside the mask
-            k = 2 * cfg.feat_border_px + 1
-            fm = cv2.erode(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))) * 255
-        else:
-            fm = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) * 255
+        fm = cv2.dilate(mask.astype(np.uint8), np.ones((3, 3), np.uint8)) * 255  # the mask dilated by 1 px
         orb = cv2.ORB_create(nfeatures=cfg.n_features, scaleFactor=1.2, nlevels=4, edgeThreshold=9, patchSize=15,
                              fastThreshold=7)
         kps, des = orb.detectAndCompute(gray, fm)
@@ -299,7 +287,7 @@ class TrackResult:
     keyframes: list[Keyframe]
     carver: FreeSpace | None = None
     kf_log: list[dict] = field(default_factory=list)  # per keyframe candidate: index, far, new_frac, added, accepted
-    n_feat: np.ndarray | None = None  # (N,2) feature correspondences used per frame: tracking, final pass
+    n_feat: np.ndarray | None = None  # (N,2) feature correspondences used per frame: tracking, final pass (none: 0)
     spin: "SpinResult | None" = None  # spin closure of a body of revolution (cfg.spin_closure)
     landings: list = field(default_factory=list)  # resettle.Landing of
     # every topple landing joined (cfg.resettle: X_new the join; score_old / score_new the fractions of the pre-fall
@@ -360,14 +348,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
 
     icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist,
                   normal_cos=cfg.icp_normal_cos)
-    stages = cfg.stage_set("degen_stages")
-
-    def deg_kw_for(stage: str) -> dict:
-        return dict(w_feat_degen=cfg.w_feat_degen if stage in stages else 0.0, degen_tau=cfg.degen_tau)
-
-    deg_kw = deg_kw_for("track")
     n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
-    frng = np.random.default_rng(cfg.seed + 1)  # RANSACs of the keyframe features (own stream: rng unchanged)
     landings: list = []  # resettle.Landing of every topple landing checked (cfg.resettle)
     for i in range(1, N):
         o = observe(session, i, cfg, rng)
@@ -397,8 +378,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 dt, da = pose_distance(best.X_WO, Xc)
                 if dt < 0.01 and da < 5.0:
                     continue  # this start converges to the pose already found
-            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw,
-                    **deg_kw)
+            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw)
             if _better(r, best):
                 best = r
         if a != i - 1 and not _good(best, cfg):
@@ -472,10 +452,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             for k in range(1, len(keyframes)):
                 others = _model_from([kf for j, kf in enumerate(keyframes) if j != k], cfg.model_voxel)
                 kf = keyframes[k]
-                fW, fO = _kf_features(kf.kp_W, kf.desc, kf.X_WO, [kk for j, kk in enumerate(keyframes) if j != k],
-                                      cfg, frng) if "refine" in stages else (None, None)
-                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=kf.N_W,
-                        **{**icp_kw, "dist0": 0.015}, **deg_kw_for("refine"))
+                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, N_src=kf.N_W, **{**icp_kw, "dist0": 0.015})
                 if _good(r, cfg):
                     _place_keyframe(kf, r.X_WO, carver)
             model = _model_from(keyframes, cfg.model_voxel)
@@ -485,11 +462,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             if len(o.P_W) < cfg.min_points:
                 continue
             start = X[i]
-            fW, fO = _kf_features(o.kp_W, o.desc, start, keyframes, cfg, frng) if "final" in stages else (None, None)
-            n_feat[i, 1] = 0 if fW is None else len(fW)
-            r = icp(o.P_W, start, model.tree, model.Q, model.N, feat_W=fW, feat_O=fO, w_feat=0.0, N_src=o.N_W,
-                    **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters},
-                    **deg_kw_for("final"))
+            r = icp(o.P_W, start, model.tree, model.Q, model.N, N_src=o.N_W,
+                    **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
             X[i], frac[i], rmse[i] = r.X_WO, r.inlier_frac, r.rmse
             tracked[i] = _good(r, cfg)
             if i % 20 == 0:
@@ -833,12 +807,11 @@ def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Ke
     mismatch between frame 0's own points and the merged model of all keyframes would be an offset common to
     all other frames.
     Updates X, keyframes and carver in place; returns the model in the new frame.
-    With ``gauge_loo`` frame 0 is registered to the model without keyframe 0, with ``gauge_frames`` X̂_0 is the
-    robust mean over frame 0 and the frames at rest before the robot reaches the object (``service.tracking.gauge``)."""
+    With ``gauge_frames`` X̂_0 is the robust mean over frame 0 and the frames at rest before the robot reaches the
+    object (``service.tracking.gauge``)."""
     if len(o0.P_W) < cfg.min_points:
         return model
-    reg = _model_from(keyframes[1:], cfg.model_voxel) if cfg.gauge_loo and len(keyframes) > 2 else model
-    r = icp(o0.P_W, X[0], reg.tree, reg.Q, reg.N, N_src=o0.N_W,
+    r = icp(o0.P_W, X[0], model.tree, model.Q, model.N, N_src=o0.N_W,
             **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
     X0_hat = r.X_WO if _good(r, cfg) else None
     if cfg.gauge_frames > 0 and obs is not None and tracked is not None and session is not None:
@@ -875,19 +848,9 @@ def _bundle_adjust(keyframes: list[Keyframe], cfg: TrackingConfig, rng: np.rando
     """Joint refinement of the keyframe poses (``service.tracking.posegraph``); keyframe 0 stays fixed."""
     from service.tracking.posegraph import bundle_adjust
 
-    feats = {}
-    ba_degen = cfg.w_feat_degen if "ba" in cfg.stage_set("degen_stages") else 0.0
-    if cfg.ba_features or ba_degen > 0:
-        for a in range(len(keyframes)):
-            for b in range(a + 1, len(keyframes)):
-                ka, kb = keyframes[a], keyframes[b]
-                m = _match(ka.desc, kb.desc)
-                if len(m) >= 6 and ka.kp_W is not None and kb.kp_W is not None:
-                    feats[(a, b)] = (ka.kp_W[m[:, 0]], kb.kp_W[m[:, 1]])
     X_OW = np.stack([X_inv(kf.X_WO) for kf in keyframes])
-    res = bundle_adjust(X_OW, [kf.P_W for kf in keyframes], [kf.N_W for kf in keyframes], feats,
-                        iters=cfg.ba_iters, huber=cfg.ba_huber, w_feat=cfg.ba_w_feat if cfg.ba_features else 0.0,
-                        w_feat_degen=ba_degen, degen_tau=cfg.degen_tau, rng=rng)
+    res = bundle_adjust(X_OW, [kf.P_W for kf in keyframes], [kf.N_W for kf in keyframes],
+                        iters=cfg.ba_iters, huber=cfg.ba_huber, rng=rng)
     for kf, X_ow in zip(keyframes[1:], res.X_OW[1:]):
         kf.X_WO = X_inv(X_ow)
         kf.P_O = kf.P_W @ X_ow[:3, :3].T + X_ow[:3, 3]
@@ -939,37 +902,6 @@ def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np
         if Xr is not None:
             return Xr, inl
     return ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
-
-
-def _kf_features(kp_W: np.ndarray, desc: np.ndarray | None, X_WO: np.ndarray, keyframes: list[Keyframe],
-                 cfg: TrackingConfig, rng: np.random.Generator, n_kf: int = 3
-                 ) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """3-D feature correspondences (point in W, same point in O) of one view against the ``n_kf`` keyframes
-    closest in orientation to X_WO, kept when a RANSAC rigid fit accepts them and its pose agrees with X_WO
-    within 30° / 3 cm (the weak direction is the one they must fix; a gross disagreement is a wrong fit).
-    (None, None) when features are off or fewer than 6 survive."""
-    if cfg.w_feat_degen <= 0 or desc is None or len(kp_W) < 6 or not keyframes:
-        return None, None
-    ang = [pose_distance(kf.X_WO, X_WO)[1] for kf in keyframes]
-    A, B = [], []
-    for j in np.argsort(ang)[:n_kf]:
-        kf = keyframes[j]
-        m = _match(desc, kf.desc)
-        if len(m):
-            A.append(kp_W[m[:, 0]])
-            B.append(kf.kp_O[m[:, 1]])
-    if not A:
-        return None, None
-    fW, fO = np.concatenate(A), np.concatenate(B)
-    if len(fW) < 6:
-        return None, None
-    Xr, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng)
-    if Xr is None or inl.sum() < 6:
-        return None, None
-    dt, da = pose_distance(X_inv(Xr), X_WO)
-    if dt > 0.03 or da > 30.0:
-        return None, None
-    return fW[inl], fO[inl]
 
 
 def interpolate_untracked(X_WO: np.ndarray, tracked: np.ndarray) -> np.ndarray:

@@ -11,9 +11,6 @@ from service.sdf.types import SdfConfig, SdfGrid
 from service.session.types import Session
 
 
-_STAGES = {"degen_stages": frozenset({"track", "ba", "refine", "final"})}
-
-
 @dataclass(frozen=True)
 class TrackingInputs:
     session: Session
@@ -73,8 +70,6 @@ class TrackingConfig:
     # model (wrong pose or clutter in the mask): it neither becomes a keyframe nor supervises the SDF
     features: bool = True  # ORB features inside the mask for the coarse motion
     n_features: int = 400
-    feat_border_px: int = 0  # ORB keypoints at least this far inside the object mask (0: the mask dilated by 1 px;
-    # 8 helped the bottle development session and hurt the evaluation sessions, docs/tracking.md)
     # registration
     icp_iters: int = 12
     icp_dist0: float = 0.03  # initial correspondence radius
@@ -113,16 +108,7 @@ class TrackingConfig:
     grow_dist: float = 0.015  # points farther than this from the model are not added (mask noise)
     refine_rounds: int = 2  # leave-one-out keyframe refinement rounds after the bundle adjustment (0: off)
     ba_iters: int = 10  # keyframe bundle adjustment (service.tracking.posegraph) iterations (0: off)
-    ba_features: bool = False  # ORB matches between keyframes enter the bundle adjustment (off: features at depth
-    # edges biased it; textureless styrofoam 706: 0.98° median with them, 0.59° without)
-    # appearance along the shape's weak directions (geometry.degenerate_map; Zhang, Kaess & Singh 2016): 3-D ORB
-    # correspondences constrain only the directions the point-to-plane terms leave free (roll of a body of
-    # revolution), in tracking, bundle adjustment, leave-one-out rounds and the final pass (0: off)
-    w_feat_degen: float = 0.0  # off: no gain measured on the bottle/egg sessions (docs/tracking.md)
-    degen_stages: str = "track,ba,refine,final"  # where: tracking loop, bundle adjustment, leave-one-out, final pass
-    degen_tau: float = 0.02  # normalised eigenvalue below which a direction counts as weak (1/3: fully constrained)
     ba_huber: float = 0.002  # Huber threshold of its point-to-plane residuals
-    ba_w_feat: float = 0.3  # weight of its feature terms
     final_pass: bool = True  # re-register every frame against the final model
     final_iters: int = 6
     regauge_frame0: bool = True  # frame 0 registered to the final model too; O moved so X_WO(0) keeps its definition
@@ -170,7 +156,6 @@ class TrackingConfig:
     # (visible.carved_init; the mug's mouth and cavity: 708 4.73 -> 3.99 mm, the others unchanged, docs/tracking.md)
     sdf_carve_init: bool = True
     sdf_carve_value: float = 0.005  # S (m) given to those voxels
-    sdf_drop_flying: bool = False  # no object rays at depth jumps inside the mask (flying pixels; edge_jump test)
     # spin closure: axis of a model whose weak rotations mix (an egg) refitted to its radius profile ("mixed"),
     # every axis so ("always") or none ("off"); "multi": as "mixed", the refit started from every rotation eigen-axis
     # too (spin.profile_starts), the best profile fit kept (egg 707 6.91 -> 6.82 deg median, 30.39 -> 28.44 worst; the
@@ -181,13 +166,12 @@ class TrackingConfig:
     # gauge of the body frame (service.tracking.gauge): X̂_0 = robust mean of frame 0's registration to the final
     # model and of the final poses of up to gauge_frames frames at rest — before the end effector comes within
     # ee_radius + gauge_ee_margin of the model, within gauge_max_deg / gauge_max_dist of frame 0 (0: frame 0 alone;
-    # no robot data: frame 0 alone); gauge_loo: frame 0 registered to the model without keyframe 0 (its own points).
+    # no robot data: frame 0 alone).
     # On: l_block 702 2.72° / 5.40° -> 1.59° / 4.04°, no material loss elsewhere (docs/tracking.md, "Worst frames")
     gauge_frames: int = 30
     gauge_max_deg: float = 5.0
     gauge_max_dist: float = 0.01
     gauge_ee_margin: float = 0.02
-    gauge_loo: bool = False
     # the table and the frame's free space as a test of a pose (resettle.pose_consistent; the fall's frames registered
     # backwards from an adopted join): a pose whose model lies more than
     # landing_table_margin below the table (over landing_table_frac of its points) or covers pixels where the frame
@@ -347,8 +331,7 @@ class TrackingConfig:
         for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
             if f.type in ("bool", bool) and not isinstance(getattr(self, f.name), (bool, np.bool_)):
                 raise ValueError(f"TrackingConfig.{f.name} must be true or false, not {getattr(self, f.name)!r}")
-        self.stage_set("degen_stages")
-        for name in ("w_feat_degen", "max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
+        for name in ("max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
                      "spin_border_px", "spin_tol", "spin_inlier_deg", "kf_still_rate_deg", "kf_still_max_frames",
                      "crease_dist", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
                      "landing_table_margin", "landing_table_frac", "landing_seen_frac"):
@@ -432,16 +415,6 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.lie_level_margin must be >= 0, not {self.lie_level_margin!r}")
         if not 0 <= self.spin_arc_tau < 1:
             raise ValueError(f"TrackingConfig.spin_arc_tau must be in [0, 1), not {self.spin_arc_tau!r}")
-
-    def stage_set(self, name: str) -> frozenset[str]:
-        """The stages named by ``degen_stages`` (comma-separated; ValueError for
-        an unknown one)."""
-        allowed = _STAGES[name]
-        got = frozenset(x.strip() for x in getattr(self, name).split(",") if x.strip())
-        if not got <= allowed:
-            raise ValueError(f"TrackingConfig.{name}: unknown stage(s) {sorted(got - allowed)}; "
-                             f"expected a comma-separated subset of {sorted(allowed)}")
-        return got
 
     @classmethod
     def fast(cls) -> "TrackingConfig":

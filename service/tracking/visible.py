@@ -1,7 +1,6 @@
 """Rays for the visible-geometry SDF and the visible point set V (Vysics §IV-A).
 
-Rays: from up to ``sdf_frames`` tracked frames, object pixels (mask, depth, above the table; with
-``sdf_drop_flying`` not at a depth jump, ``smooth_depth``) whose back-projected
+Rays: from up to ``sdf_frames`` tracked frames, object pixels (mask, depth, above the table) whose back-projected
 point lies within ``sdf_denoise`` of the tracked object model (BundleSDF drops rays > 2 cm from its point
 cloud), plus free rays in the dilated ring around the mask; all expressed in O with the tracked X_OC = X_OW X_WC.
 
@@ -48,16 +47,6 @@ def below_table_halfspace(X_WO0: np.ndarray, table_height: float) -> np.ndarray:
     return np.concatenate([-X_WO0[2, :3], [table_height - X_WO0[2, 3]]])
 
 
-def smooth_depth(depth: np.ndarray, jump: float) -> np.ndarray:
-    """(H,W) bool: ``geometry.depth_continuous`` over every pixel of depth (H,W) (the flying-pixel test of the
-    tracking points). Inside the mask the flying pixels are the rim of a mug against its far inner wall or one
-    step of a block against another, which the symmetric erosion of the mask does not remove."""
-    from service.tracking.geometry import depth_continuous
-
-    v, u = np.indices(depth.shape).reshape(2, -1)
-    return depth_continuous(np.asarray(depth), u, v, jump).reshape(depth.shape)
-
-
 def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng: np.random.Generator,
              carver=None) -> RaySet:
     """Depth rays in O of ``frames`` (see module docstring). ``carver``: optional
@@ -79,8 +68,6 @@ def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng
             k = 2 * cfg.sdf_erode_px + 1
             m_obj = cv2.erode(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (k, k))) > 0
         sel = m_obj & (depth > 0) & grid
-        if cfg.sdf_drop_flying:  # depth jumps inside the mask: flying pixels between the near and far surface
-            sel &= smooth_depth(depth, cfg.edge_jump)
         v, u = np.nonzero(sel)
         d = depth[v, u]
         P_C = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], 1)

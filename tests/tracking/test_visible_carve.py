@@ -49,20 +49,6 @@ def test_carved_init_opens_the_cavity_and_keeps_the_walls():
     assert np.all(sdf_query(g, walls) < 0), sdf_query(g, walls)
 
 
-def test_smooth_depth_drops_flying_pixels_at_jumps_only():
-    from service.tracking.visible import smooth_depth
-
-    d = np.full((20, 30), 0.60, np.float32)
-    d[:, 15:] = 0.68  # a rim in front of a far wall: 8 cm jump
-    d[5, 15] = 0.64  # a flying pixel, half-way
-    d[10:12, 3:5] = 0.0  # a hole
-    d[:, :8] += np.linspace(0, 0.004, 8, dtype=np.float32)  # a slanted part: continuous
-    ok = smooth_depth(d, 0.01)
-    assert not ok[:, 14:16].any()  # both sides of the jump, the flying pixel included
-    assert not ok[10:12, 3:5].any() and not ok[9, 3] and not ok[10, 2]  # the hole and its neighbours
-    assert ok[:, 17:-1].all() and ok[:8, 1:13].all() and ok[13:, 1:13].all()
-
-
 def test_carve_value_must_be_outside():
     import pytest
 
