@@ -234,12 +234,12 @@ class BulletSimulator:
             # sphere targets at every sub-step, on the data clock shifted by the clock offset
             tt = np.concatenate([t[k] + (t[k + 1] - t[k]) * (np.arange(1, n_sub[k] + 1) / n_sub[k]) for k in range(T - 1)])
             tt = np.concatenate([[t[0]], tt]) + float(eff.get("clock_offset", 0.0))
-            if self.sphere_drive == "inverse":
-                ee_path = sphere_targets(np.stack([np.interp(tt, rt, rp[:, i]) for i in range(3)], 1))
-            else:
+            if self.sphere_drive == "lead":
                 # + the constraint's steady lag (1 − erp) / erp sub-steps: the sphere is on its path in free motion
                 tt = tt + CONSTRAINT_LEAD_STEPS * h
-                ee_path = np.stack([np.interp(tt, rt, rp[:, i]) for i in range(3)], 1)
+            ee_path = np.stack([np.interp(tt, rt, rp[:, i]) for i in range(3)], 1)
+            if self.sphere_drive == "inverse":
+                ee_path = sphere_targets(ee_path)
             sshape = p.createCollisionShape(p.GEOM_SPHERE, radius=float(rb.radius), physicsClientId=cid)
             sphere = p.createMultiBody(10.0, sshape, basePosition=ee_path[0].tolist(), physicsClientId=cid)
             p.changeDynamics(sphere, -1, lateralFriction=mu_r, restitution=1.0, linearDamping=0.0,
