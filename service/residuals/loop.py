@@ -815,6 +815,16 @@ def unit_lower_bound(x: np.ndarray, cfg: ResidualConfig, rng) -> float:
     return float(x.mean() - student_t.ppf(1.0 - cfg.alpha, len(x) - 1) * x.std(ddof=1) / math.sqrt(len(x)))
 
 
+def sign_test(before: np.ndarray, after: np.ndarray, cfg: ResidualConfig) -> tuple[int, int, float]:
+    """Sign test over paired block errors (S,) in metres: blocks better and worse by more than ``tie_tol_rel`` of the
+    median of ``before`` (ties dropped), and the one-sided p of that many better under no change."""
+    d = before - after
+    tol = cfg.tie_tol_rel * float(np.median(before))
+    n_pos, n_neg = int(np.sum(d > tol)), int(np.sum(d < -tol))
+    p_sign = float(binom.sf(n_pos - 1, n_pos + n_neg, 0.5)) if n_pos + n_neg else 1.0
+    return n_pos, n_neg, p_sign
+
+
 def _decide(before: np.ndarray, after: np.ndarray, units: np.ndarray, cfg: ResidualConfig, rng) -> tuple[bool, str, float]:
     """Acceptance rule on paired held-out errors (see the module docstring and docs/residuals.md §4)."""
     d_seg = before - after
@@ -822,9 +832,7 @@ def _decide(before: np.ndarray, after: np.ndarray, units: np.ndarray, cfg: Resid
     rel = float(d_seg.mean() / mb) if mb > 0 else 0.0
     x = unit_improvements(before, after, units, cfg.unit_statistic)
     lower = unit_lower_bound(x, cfg, rng)
-    tol = cfg.tie_tol_rel * float(np.median(before))
-    n_pos, n_neg = int(np.sum(d_seg > tol)), int(np.sum(d_seg < -tol))
-    p_sign = float(binom.sf(n_pos - 1, n_pos + n_neg, 0.5)) if n_pos + n_neg else 1.0
+    n_pos, n_neg, p_sign = sign_test(before, after, cfg)
     bound = (f"bootstrap {1 - cfg.alpha:.0%} lower bound {lower:+.2e} m of the mean improvement over {len(x)} units"
              if cfg.unit_statistic == "mean" else
              f"{1 - cfg.alpha:.0%} lower bound {lower:+.3f} of the mean relative improvement over {len(x)} units "
@@ -850,12 +858,9 @@ def head_to_head(err_other: np.ndarray, err_this: np.ndarray, units: np.ndarray,
     that each pass on their own, any improvement beyond noise decides. Returns (better, text)."""
     x = unit_improvements(err_other, err_this, units, cfg.unit_statistic)
     lower = unit_lower_bound(x, cfg, rng)
-    d = err_other - err_this
-    tol = cfg.tie_tol_rel * float(np.median(err_other))
-    n_pos, n_neg = int(np.sum(d > tol)), int(np.sum(d < -tol))
-    p_sign = float(binom.sf(n_pos - 1, n_pos + n_neg, 0.5)) if n_pos + n_neg else 1.0
+    n_pos, n_neg, p_sign = sign_test(err_other, err_this, cfg)
     better = bool(lower > 0 and p_sign < cfg.alpha)
-    txt = (f"{err_other.mean() * 1e3:.2f} -> {err_this.mean() * 1e3:.2f} mm on {len(d)} blocks, lower bound "
+    txt = (f"{err_other.mean() * 1e3:.2f} -> {err_this.mean() * 1e3:.2f} mm on {len(err_this)} blocks, lower bound "
            f"{lower:+.3f} of the mean relative improvement over {len(x)} units, better/worse on {n_pos}/{n_neg} blocks "
            f"(sign test p={p_sign:.3f})")
     return better, txt
