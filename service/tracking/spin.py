@@ -72,22 +72,35 @@ def revolution_axis(Q: np.ndarray, N: np.ndarray, tau: float, sep: float = 0.5, 
     direction (sep then compares it with the third)."""
     if len(Q) < 20:
         return False, 1.0, np.zeros(3), np.zeros(3)
+    lam, U, Di, ctr = _screw_eig(Q, N)
+    lam = lam / len(Q)
+    lam, U = _split_tie(lam, U, k)
+    u = U[:, k]
+    if np.sum(u[:3] ** 2) <= 0.5 or lam[k] >= tau or lam[k] > sep * lam[k + 1]:
+        return False, float(lam[k]), np.zeros(3), np.zeros(3)
+    a, c = _screw_axis(u, Di, ctr)
+    return True, float(lam[k]), a, c
+
+
+def _screw_eig(Q: np.ndarray, N: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Eigen-decomposition of the scaled point-to-plane normal matrix of model points Q (M,3) with normals N (M,3)
+    in O (module docstring): λ (6,) ascending (sums over the points, not yet divided by M), U (6,6) its eigenvectors
+    over (ω/L, v), the scaling Di (6,6) and the centroid of Q (3,) the screws are taken about."""
     ctr = Q.mean(0)
     P = Q - ctr  # centred: the screw's translation part is then small and well scaled
     J = np.hstack([_cross(P, N), N])
     L = float(np.sqrt(np.mean(np.sum(P**2, 1)))) or 1.0
     Di = np.diag([1 / L, 1 / L, 1 / L, 1.0, 1.0, 1.0])
     lam, U = np.linalg.eigh(Di @ (J.T @ J) @ Di)
-    lam = lam / len(Q)
-    lam, U = _split_tie(lam, U, k)
-    u = U[:, k]
-    if np.sum(u[:3] ** 2) <= 0.5 or lam[k] >= tau or lam[k] > sep * lam[k + 1]:
-        return False, float(lam[k]), np.zeros(3), np.zeros(3)
+    return lam, U, Di, ctr
+
+
+def _screw_axis(u: np.ndarray, Di: np.ndarray, ctr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis direction a (3,) and a point c (3,) on it, in O, of the screw u (6,) of ``_screw_eig``."""
     xi = Di @ u  # back to (ω, v) in metres: z = D ξ
     w, v = xi[:3], xi[3:]
     a = w / np.linalg.norm(w)
-    c = np.cross(w, v) / float(w @ w) + ctr
-    return True, float(lam[k]), a, c
+    return a, np.cross(w, v) / float(w @ w) + ctr
 
 
 def _split_tie(lam: np.ndarray, U: np.ndarray, k: int, rel: float = 1e-12) -> tuple[np.ndarray, np.ndarray]:
@@ -185,20 +198,13 @@ def profile_starts(Q: np.ndarray, N: np.ndarray) -> list[tuple[np.ndarray, np.nd
     an egg's three rotations are all weak and their eigen-axes mix, so the weakest one may lie anywhere, and a refit
     from it can stop in a local minimum across the body (development egg 1002 with ``track_ransac_thr``: from the
     weakest eigen-axis 1.92 mm RMS, 79° from the long axis; from the centroid or another eigen-axis 1.23 mm, 9°)."""
-    ctr = Q.mean(0)
-    P = Q - ctr
-    J = np.hstack([_cross(P, N), N])
-    L = float(np.sqrt(np.mean(np.sum(P**2, 1)))) or 1.0
-    Di = np.diag([1 / L, 1 / L, 1 / L, 1.0, 1.0, 1.0])
-    _, U = np.linalg.eigh(Di @ (J.T @ J) @ Di)
+    _, U, Di, ctr = _screw_eig(Q, N)
     out = []
     for u in U.T:
         if np.sum(u[:3] ** 2) <= 0.5:
             continue
-        xi = Di @ u
-        w, v = xi[:3], xi[3:]
-        a = w / np.linalg.norm(w)
-        out += [(a, np.cross(w, v) / float(w @ w) + ctr), (a, ctr)]
+        a, c = _screw_axis(u, Di, ctr)
+        out += [(a, c), (a, ctr)]
     return out
 
 
