@@ -78,24 +78,46 @@ def load_tosses(path: Path, max_tosses: int | None, seed: int):
     return tuple(trajs)
 
 
-def _contact_breaking(args) -> float | None:
-    """``ResidualConfig.contact_breaking_m`` from ``--contact-breaking`` (absent: the config's default; 'off': None)."""
+def _off_or_float(text: str) -> float | str:
+    """argparse type of the simulator flags: a number, or 'off' (Bullet's own default)."""
+    if str(text).lower() == "off":
+        return "off"
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number or 'off', not {text!r}") from None
+
+
+def _config_json(text: str) -> dict:
+    """argparse type of ``--config``: a JSON object of ``ResidualConfig`` fields."""
     from service.residuals.types import ResidualConfig
 
-    v = getattr(args, "contact_breaking", None)
-    if v is None:
-        return ResidualConfig.contact_breaking_m
-    return None if str(v).lower() == "off" else float(v)
+    try:
+        cfg = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise argparse.ArgumentTypeError(f"not JSON ({e})") from None
+    if not isinstance(cfg, dict):
+        raise argparse.ArgumentTypeError("expected a JSON object of ResidualConfig fields")
+    unknown = sorted(set(cfg) - {f.name for f in dataclasses.fields(ResidualConfig)})
+    if unknown:
+        raise argparse.ArgumentTypeError(f"not ResidualConfig fields: {', '.join(unknown)}")
+    clash = sorted(set(cfg) & {"contact_breaking_m", "contact_erp", "candidates", "folds", "unit_statistic",
+                               "lookalike_check", "max_train_segments", "fit_maxiter"})
+    if clash:
+        raise argparse.ArgumentTypeError(f"set by the benchmark or its own flags, not by --config: {', '.join(clash)}")
+    return cfg
 
 
-def _contact_erp(args) -> float | None:
-    """``ResidualConfig.contact_erp`` from ``--contact-erp`` (absent: the config's default; 'off': None)."""
+def _sim_settings(args) -> dict:
+    """``ResidualConfig.contact_breaking_m`` and ``contact_erp`` from ``--contact-breaking`` / ``--contact-erp``
+    (absent: the config's default; 'off': None, Bullet's default)."""
     from service.residuals.types import ResidualConfig
 
-    v = getattr(args, "contact_erp", None)
-    if v is None:
-        return ResidualConfig.contact_erp
-    return None if str(v).lower() == "off" else float(v)
+    out = {}
+    for flag, field in (("contact_breaking", "contact_breaking_m"), ("contact_erp", "contact_erp")):
+        v = getattr(args, flag, None)
+        out[field] = getattr(ResidualConfig, field) if v is None else (None if v == "off" else v)
+    return out
 
 
 def _ratio(after: float, before: float) -> float:
@@ -148,8 +170,7 @@ def real(args) -> None:
         seed=args.seed, candidates=tuple(args.candidates), max_train_segments=args.train_segments,
         max_heldout_segments=args.heldout_segments, fit_maxiter=args.fit_maxiter, max_effects=args.max_effects,
         unit_statistic=args.unit_statistic, folds=args.folds,
-        lookalike_check=args.lookalike_check,
-        contact_breaking_m=_contact_breaking(args), contact_erp=_contact_erp(args),
+        lookalike_check=args.lookalike_check, **_sim_settings(args),
     )
     t0 = time.time()
     out = run(ResidualInputs(cube_model(), trajs, 0.0), cfg,
@@ -176,8 +197,7 @@ def synthetic(args) -> None:
     # 12 training blocks and 24 evaluations per fit, as tests/residuals/test_recover_angular_damping.py
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, max_train_segments=12, fit_maxiter=24,
                               unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check,
-                              contact_breaking_m=_contact_breaking(args), contact_erp=_contact_erp(args),
-                              **json.loads(args.config))
+                              **_sim_settings(args), **args.config)
     import resource
 
     rows = []
@@ -232,8 +252,8 @@ def synthetic(args) -> None:
     for seed in args.seeds[:2]:
         tr, path = push_session(base, {"friction_object_table": 0.5}, seed=seed, noise_m=3e-4, strokes=12)
         pcfg = dataclasses.replace(ResidualConfig.fast(), candidates=("friction_table", "clock_offset", "restitution"),
-                                   segment_s=0.5, seed=seed, unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check,
-        contact_breaking_m=_contact_breaking(args), contact_erp=_contact_erp(args))
+                                   segment_s=0.5, seed=seed, unit_statistic=args.unit_statistic, folds=args.folds,
+                                   lookalike_check=args.lookalike_check, **_sim_settings(args))
         out = run(ResidualInputs(base, (tr,), 0.0, robot=(path,)), pcfg)
         c = {c.effect: c for c in out.candidates}["friction_table"]
         print(f"pushing, hidden friction_object_table 0.5, seed {seed}: accepted {list(out.accepted)}; "
@@ -265,8 +285,7 @@ def lab(args) -> None:
     cands = ("clock_offset", "friction_table", "table_tilt", "linear_damping", "restitution")
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, max_train_segments=10,
                               nuisance=() if args.exact_model else NUISANCE_LEARNED, unit_statistic=args.unit_statistic,
-                              folds=args.folds, lookalike_check=args.lookalike_check,
-        contact_breaking_m=_contact_breaking(args), contact_erp=_contact_erp(args))
+                              folds=args.folds, lookalike_check=args.lookalike_check, **_sim_settings(args))
     for case in args.cases:
         hidden, name, key = LAB_CASES[case]
         for seed in args.seeds:
@@ -401,8 +420,7 @@ def strike(args) -> None:
             cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, seed=seed,
                                       fit_maxiter=24, max_train_segments=10,
                                       nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
-                                      unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check,
-        contact_breaking_m=_contact_breaking(args), contact_erp=_contact_erp(args),
+                                      unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check, **_sim_settings(args),
                                       sphere_drive=args.sphere_drive)
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
@@ -500,7 +518,7 @@ def main() -> None:
     s.add_argument("--cases", nargs="+", default=None,
                    help="subset of: none gravity_scale restitution table_offset linear_damping angular_damping")
     s.add_argument("--no-pushing", action="store_true")
-    s.add_argument("--config", default="{}",
+    s.add_argument("--config", default={}, type=_config_json,
                    help='JSON of ResidualConfig fields for the toss cases, e.g. \'{"init_fit_frames_flight": 41}\'')
     lb = sub.add_parser("lab")
     lb.add_argument("--seeds", type=int, nargs="+", default=[601, 602])
@@ -539,10 +557,10 @@ def main() -> None:
         sp.add_argument("--lookalike-check", action="store_true",
                         help="rule 9 (docs/residuals.md §4): a passing candidate must beat each look-alike effect "
                              "fitted in the same round (table friction against linear damping) on held-out blocks")
-        sp.add_argument("--contact-breaking", default=None, metavar="M",
+        sp.add_argument("--contact-breaking", default=None, metavar="M", type=_off_or_float,
                         help="contact breaking threshold of the loop's simulator in m, or 'off' for Bullet's 0.02 m "
                              "(ResidualConfig.contact_breaking_m, docs/residuals.md §6); default: the config's default")
-        sp.add_argument("--contact-erp", default=None, metavar="F",
+        sp.add_argument("--contact-erp", default=None, metavar="F", type=_off_or_float,
                         help="fraction of a contact's penetration the loop's simulator pushes out per sub-step, or 'off' "
                              "for Bullet's default (ResidualConfig.contact_erp, docs/residuals.md §6)")
     args = ap.parse_args()
