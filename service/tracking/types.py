@@ -284,10 +284,13 @@ class TrackingConfig:
     spin_fall_tol_deg: float = 3.0
     # the light's features on a rolling body dropped from the spin votes (spin.lit_matches): a body of revolution
     # lying on the table (axis within spin_lit_lie_deg of the horizontal in both frames of a pair) whose axis line
-    # moved across itself by d >= spin_lit_move (m) turned; matches whose offset from the axis line changed by less
-    # than spin_lit_frac * d kept their place under the world-fixed light (shading edges, highlights: a turn about
-    # the axis leaves the shading of a body of revolution unchanged) and are dropped; 0: off
-    # (docs/tracking.md "Lit features on a rolling body")
+    # moved across itself by d >= spin_lit_move (m) turned, by d / R rolling on its radius R (the model's 90th
+    # percentile distance from the axis); matches whose azimuth about the axis line (from the vertical) changed by
+    # less than spin_lit_frac * d / R kept their place under the world-fixed light (shading edges, highlights: a turn
+    # about the axis leaves the shading of a body of revolution unchanged) and are left out of the chain's votes when
+    # enough remain (spin_lit_keep); 0: off (docs/tracking.md "Lit features on a rolling body")
+    # (0.7: development 1022 10.33 / 21.14 -> 6.85 / 10.20 deg, but 1326 7.15 -> 8.69 median; evaluation 704 worst
+    # frame 8.58 -> 6.14, 707 median 6.82 -> 6.91: off)
     spin_lit_frac: float = 0.0
     spin_lit_move: float = 0.004
     spin_lit_lie_deg: float = 15.0
