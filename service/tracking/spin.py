@@ -45,6 +45,7 @@ increments over fast stretches of the tracked rotation where the chain pooled fe
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -271,6 +272,50 @@ def spin_votes(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray,
     return np.angle(np.exp(1j * (fp[ok] - fq[ok])))
 
 
+class LitTest(NamedTuple):
+    """Settings of the lit-feature test of ``spin_closure`` (``lit_matches``): the radius (m) the lying body rolls on,
+    the fraction of the rolling turn below which a match is the light's, the least travel (m) of the axis line across
+    itself, the largest angle (°) of the axis from the horizontal, and the share of a frame's votes that must remain
+    for the test's votes to replace them (fewer: the body slid, and its surface features look lit)."""
+    radius: float
+    frac: float
+    min_move: float
+    lie_deg: float
+    keep: float
+
+
+def lit_matches(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray, a: np.ndarray, c: np.ndarray,
+                radius: float, frac: float, min_move: float, lie_deg: float) -> np.ndarray | None:
+    """(K,) bool: the matches p (frame i, W) – q (frame j, W) that did not turn with a lying body of revolution
+    (True: drop the vote), or None when the test does not apply. The light of a scene is fixed in W and the shading of
+    a body of revolution is unchanged by a turn about its axis, so its features (shading edges, highlights) keep
+    their azimuth about the axis line, measured from the vertical, while the surface turns under them. A body lying
+    on a table (axis within ``lie_deg`` of the horizontal in both frames) whose axis line moved across itself by
+    d ≥ ``min_move`` (m) between the frames rolled on its body of radius ``radius`` (m), by d / radius if it did
+    not slip (0.66–1.0 of that on the development bottles); matches whose azimuth changed by less than
+    ``frac`` · d / radius are dropped. Poses X_i, X_j (4,4) with the axis (a, c) in O; only the axis line of each pose
+    enters (a spin about it does not move it)."""
+    ai, aj = X_i[:3, :3] @ a, X_j[:3, :3] @ a
+    s = np.sin(np.radians(lie_deg))
+    if abs(ai[2]) > s or abs(aj[2]) > s or radius <= 0:
+        return None
+    Pi, Pj = X_i[:3, :3] @ c + X_i[:3, 3], X_j[:3, :3] @ c + X_j[:3, 3]
+    dP = Pi - Pj
+    d = float(np.linalg.norm(dP - (dP @ ai) * ai))
+    if d < min_move:
+        return None
+
+    def azimuth(P: np.ndarray, C: np.ndarray, ax: np.ndarray) -> np.ndarray:  # from the vertical, about ax
+        e1 = np.array([0.0, 0.0, 1.0]) - ax[2] * ax
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(ax, e1)
+        r = P - C
+        return np.arctan2(r @ e2, r @ e1)
+
+    turn = np.angle(np.exp(1j * (azimuth(pW, Pi, ai) - azimuth(qW, Pj, aj))))
+    return np.abs(turn) < frac * d / radius
+
+
 def vote_mode(theta: np.ndarray, half_width: float) -> tuple[float, int]:
     """(θ, count): the median of the largest set of votes within ±half_width of one another's centre."""
     if len(theta) == 0:
@@ -288,14 +333,16 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
                  *, tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
                  n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0, profile: str = "off",
                  max_deg: float = 0.0, axis: tuple | None = None, fast: np.ndarray | None = None,
-                 theta_fast: np.ndarray | None = None) -> SpinResult:
+                 theta_fast: np.ndarray | None = None, lit: LitTest | None = None) -> SpinResult:
     """Spin correction θ (N,) of the poses X_WO (N,4,4) of a body of revolution (module docstring) from each
     frame's interior features ``feats[i] = (points (F,3) in W, descriptors (F,32) or None)``
     (``interior_features``); X_WO is not changed (apply with ``apply_spin``). Q (M,3), N (M,3): the final model
     in O. ``match(desc_a, desc_b) -> (M,2)`` pairs descriptors (the tracker's ratio-test matcher). ``axis``: the
     result of ``find_axis`` when already known. ``fast`` (N,) bool with ``theta_fast`` (N,): those frames are not
     voted; each takes the increment of theta_fast since the anchor before its stretch and is an anchor
-    (``spin_mixed``)."""
+    (``spin_mixed``). ``lit``: a frame's votes from the matches ``lit_matches`` finds did not turn with a lying,
+    rolling body are left out when at least ``min_votes`` in the mode and ``lit.keep`` of all its votes remain
+    (else every vote counts: a body that slid, too few features)."""
     n = len(X_WO)
     is_rev, lam, a, c = axis if axis is not None else find_axis(Q, N, tau, sep, profile)
     theta = np.zeros(n)
@@ -325,17 +372,29 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
         cand = sorted(set([0] + spread + anchors[-n_recent:]))
         prev = anchors[-1]
         win = np.radians(max_jump_deg) * (1 + (i - prev - 1) / 5)  # wider after frames without an estimate
-        th_all = []
+        th_all, th_lit = [], []  # the votes, and those without the light's features (``lit``)
         for j in cand:
             kq, dq = feats[j]
             m = match(des, dq)
             if len(m) == 0:
                 continue
-            th = spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], Xc[j], a, c, tol, basis)
+            pm, qm = kp[m[:, 0]], kq[m[:, 1]]
+            th = spin_votes(pm, qm, X_WO[i], Xc[j], a, c, tol, basis)
+            if lit is not None:  # the features of the light on a rolling body dropped (lit_matches)
+                drop = lit_matches(pm, qm, X_WO[i], Xc[j], a, c, *lit[:4])
+                keep = spin_votes(pm[~drop], qm[~drop], X_WO[i], Xc[j], a, c, tol, basis) if drop is not None else th
+                keep = theta[prev] + np.angle(np.exp(1j * (keep - theta[prev])))
+                th_lit.append(keep[np.abs(keep - theta[prev]) <= win])
             th = theta[prev] + np.angle(np.exp(1j * (th - theta[prev])))
             th = th[np.abs(th - theta[prev]) <= win]
             th_all.append(th)
         t, cnt = vote_mode(np.concatenate(th_all) if th_all else np.zeros(0), half)
+        if lit is not None and th_lit:  # kept when they alone reach min_votes (a roll with few features: all)
+            kept = np.concatenate(th_lit)
+            n_all = sum(len(x) for x in th_all)
+            t_l, cnt_l = vote_mode(kept, half)
+            if cnt_l >= min_votes and len(kept) >= lit.keep * n_all:
+                t, cnt = t_l, cnt_l
         if cnt >= min_votes:
             theta[i] = theta[prev] + np.angle(np.exp(1j * (t - theta[prev])))
             votes[i] = cnt
@@ -517,7 +576,7 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
                sep: float = 0.5, profile: str = "off", max_deg: float = 0.0, gate_deg: float = 10.0,
                n_short: int = 2, rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4,
                fast_rate_deg: float = 2.0, fast_dilate: int = 4, fast_votes: int = 60,
-               parts: dict | None = None) -> SpinResult:
+               parts: dict | None = None, lit: LitTest | None = None) -> SpinResult:
     """Spin correction like ``spin_closure`` (same axis, cap, result): the chain, with the fast frames where it pooled
     fewer than ``fast_votes`` votes (``fast_frames``; widened) taking the increments of the pose graph
     (``spin_links``, ``solve_spin_graph``; comment above). ``parts``: a dict that receives the intermediate results
@@ -533,7 +592,7 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
         return memo[key]
 
     kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match_once,
-              sep=sep, profile=profile, max_deg=max_deg, axis=axis)
+              sep=sep, profile=profile, max_deg=max_deg, axis=axis, lit=lit)
     fast = fast_frames(X_WO, fast_span, fast_rate_deg, fast_dilate)
     _, _, a, c = axis
     if not axis[0] or not fast[1:].any():

@@ -721,6 +721,18 @@ def _spin_tau(model: ObjectModel, cfg: TrackingConfig) -> float:
     return cfg.spin_tau
 
 
+def _body_radius(model: ObjectModel, cfg: TrackingConfig) -> float:
+    """The radius (m) a lying body of revolution rolls on: the 90th percentile of the model points' distances from
+    the spin axis (``spin.find_axis`` with the tracker's settings; 0 when the model is not a body of revolution)."""
+    from service.tracking.spin import find_axis
+
+    is_rev, _, a, c = find_axis(model.Q, model.N, _spin_tau(model, cfg), cfg.spin_sep, cfg.spin_profile)
+    if not is_rev:
+        return 0.0
+    d = model.Q - c
+    return float(np.percentile(np.linalg.norm(d - np.outer(d @ a, a), axis=1), 90))
+
+
 def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig) -> "SpinResult":
     """Re-estimate the spin about the symmetry axis of a body of revolution (``service.tracking.spin``) and apply
     it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture."""
@@ -732,6 +744,11 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
                   smooth=1 if cfg.spin_twist_smooth > 1 else cfg.spin_smooth,  # twist filtered instead (below)
                   match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)
     common["tau"] = _spin_tau(model, cfg)
+    if cfg.spin_lit_frac > 0:  # the light's features on a rolling body dropped from the votes (spin.lit_matches)
+        from service.tracking.spin import LitTest
+
+        common["lit"] = LitTest(_body_radius(model, cfg), cfg.spin_lit_frac, cfg.spin_lit_move, cfg.spin_lit_lie_deg,
+                                cfg.spin_lit_keep)
     graph = dict(gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
                  long_votes=cfg.spin_graph_long_votes)
     if cfg.spin_fall and cfg.spin_solver == "mixed":  # the mixed estimate, no spin in topples

@@ -282,6 +282,19 @@ class TrackingConfig:
     spin_fall_min_deg: float = 45.0
     spin_fall_edge_deg: float = 1.0
     spin_fall_tol_deg: float = 3.0
+    # the light's features on a rolling body dropped from the spin votes (spin.lit_matches): a body of revolution
+    # lying on the table (axis within spin_lit_lie_deg of the horizontal in both frames of a pair) whose axis line
+    # moved across itself by d >= spin_lit_move (m) turned, by d / R rolling on its radius R (the model's 90th
+    # percentile distance from the axis); matches whose azimuth about the axis line (from the vertical) changed by
+    # less than spin_lit_frac * d / R kept their place under the world-fixed light (shading edges, highlights: a turn
+    # about the axis leaves the shading of a body of revolution unchanged) and are left out of the chain's votes when
+    # enough remain (spin_lit_keep); 0: off (docs/tracking.md "Lit features on a rolling body")
+    # (0.7: development 1022 10.33 / 21.14 -> 6.85 / 10.20 deg, but 1326 7.15 -> 8.69 median; evaluation 704 worst
+    # frame 8.58 -> 6.14, 707 median 6.82 -> 6.91: off)
+    spin_lit_frac: float = 0.0
+    spin_lit_move: float = 0.004
+    spin_lit_lie_deg: float = 15.0
+    spin_lit_keep: float = 0.5  # a frame whose votes the test cuts below this share keeps them all (the body slid)
     # the leading face made perpendicular to the base the object stood on at frame 0 when its fitted normal is within
     # resettle_square_deg of that (resettle.landing_pose; 0: off)
     resettle_square_deg: float = 0.0  # 5: development 820 join 1.42 -> 0.55 deg, median 1.99 -> 1.26 deg
@@ -334,7 +347,8 @@ class TrackingConfig:
         for name in ("max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
                      "spin_border_px", "spin_tol", "spin_inlier_deg", "kf_still_rate_deg", "kf_still_max_frames",
                      "crease_dist", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
-                     "landing_table_margin", "landing_table_frac", "landing_seen_frac"):
+                     "landing_table_margin", "landing_table_frac", "landing_seen_frac", "spin_lit_frac",
+                     "spin_lit_move", "spin_lit_lie_deg", "spin_lit_keep"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         for name in ("spin_features", "spin_min_votes", "spin_smooth"):
