@@ -333,7 +333,7 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
                  *, tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
                  n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0, profile: str = "off",
                  max_deg: float = 0.0, axis: tuple | None = None, fast: np.ndarray | None = None,
-                 theta_fast: np.ndarray | None = None, lit: LitTest | None = None) -> SpinResult:
+                 theta_fast: np.ndarray | None = None, lit: LitTest | None = None, n_view: int = 0) -> SpinResult:
     """Spin correction θ (N,) of the poses X_WO (N,4,4) of a body of revolution (module docstring) from each
     frame's interior features ``feats[i] = (points (F,3) in W, descriptors (F,32) or None)``
     (``interior_features``); X_WO is not changed (apply with ``apply_spin``). Q (M,3), N (M,3): the final model
@@ -342,7 +342,10 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     voted; each takes the increment of theta_fast since the anchor before its stretch and is an anchor
     (``spin_mixed``). ``lit``: a frame's votes from the matches ``lit_matches`` finds did not turn with a lying,
     rolling body are left out when at least ``min_votes`` in the mode and ``lit.keep`` of all its votes remain
-    (else every vote counts: a body that slid, too few features)."""
+    (else every vote counts: a body that slid, too few features).
+    ``n_view`` > 0: each frame is also voted against that many older anchors (not of fast
+    stretches) whose corrected poses are turned least from its own, predicted with the previous correction
+    (``_nearest_views``; comment below)."""
     n = len(X_WO)
     is_rev, lam, a, c = axis if axis is not None else find_axis(Q, N, tau, sep, profile)
     theta = np.zeros(n)
@@ -371,6 +374,11 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
         spread = [older[k] for k in np.unique(np.linspace(0, len(older) - 1, n_spread).astype(int))] if older else []
         cand = sorted(set([0] + spread + anchors[-n_recent:]))
         prev = anchors[-1]
+        if n_view > 0:  # older anchors of the nearest views, among those the texture measured (not increments)
+            voted = [j for j in older if not fixed[j]]
+            if voted:
+                cand = sorted(set(cand + _nearest_views(Xc, voted, X_WO[i] @ spin_matrix(a, c, theta[prev]),
+                                                        n_view)))
         win = np.radians(max_jump_deg) * (1 + (i - prev - 1) / 5)  # wider after frames without an estimate
         th_all, th_lit = [], []  # the votes, and those without the light's features (``lit``)
         for j in cand:
@@ -406,6 +414,29 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     idx = np.nonzero(ok)[0]
     full = np.interp(np.arange(n), idx, theta[idx])
     return _finish(full, smooth, max_deg, lam, a, c, votes, observable)
+
+
+# Anchors from the nearest views (``n_view``, ``spin_view_anchors``). The chain pools its votes against frame 0, the
+# 3 latest corrected frames and up to 8 older ones spread over the session. Through the tilts of a pivot the votes
+# between frames of different views are biased (keypoints that move with the view, depth noise turned into azimuth
+# near the silhouette: −0.8…−1.0° per consecutive pair on development bottle pivots 945, 911, 1060), the 3 latest
+# anchors bring most of the votes (10-45 each, against 0-10 for frame 0 and the spread ones), and the chain carries
+# the drift into the rest after the tilt. A pivot returns to the views it had: the frames at rest before a tilt, the
+# same tilt in an earlier cycle. A keypoint seen from the same view falls on the same pixels with the same depth
+# error, so its vote against an anchor of that view has the same bias at both ends, which cancels. So each frame is
+# also voted against the older anchors whose corrected rotation is nearest to its own (predicted with the previous
+# frame's correction): they tie the frame to an earlier measurement of the same view instead of a chain of views.
+
+def _nearest_views(Xc: np.ndarray, frames: list[int], X: np.ndarray, k: int) -> list[int]:
+    """The k of ``frames`` (ascending) whose corrected poses Xc[j] (4,4) are turned least from the pose X (4,4)
+    (rotation angle of R_jᵀ R): the anchors that saw the body from the most similar view; of equal angles the
+    latest."""
+    from service.transforms import rotation_angle
+
+    late = frames[::-1]
+    R = Xc[late, :3, :3]
+    ang = rotation_angle(np.einsum("nji,jk->nik", R, X[:3, :3]))
+    return [late[t] for t in np.argsort(ang, kind="stable")[:k]]
 
 
 def _finish(full, smooth, max_deg, lam, a, c, votes, observable) -> SpinResult:
@@ -576,7 +607,7 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
                sep: float = 0.5, profile: str = "off", max_deg: float = 0.0, gate_deg: float = 10.0,
                n_short: int = 2, rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4,
                fast_rate_deg: float = 2.0, fast_dilate: int = 4, fast_votes: int = 60,
-               parts: dict | None = None, lit: LitTest | None = None) -> SpinResult:
+               parts: dict | None = None, lit: LitTest | None = None, n_view: int = 0) -> SpinResult:
     """Spin correction like ``spin_closure`` (same axis, cap, result): the chain, with the fast frames where it pooled
     fewer than ``fast_votes`` votes (``fast_frames``; widened) taking the increments of the pose graph
     (``spin_links``, ``solve_spin_graph``; comment above). ``parts``: a dict that receives the intermediate results
@@ -592,7 +623,7 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
         return memo[key]
 
     kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match_once,
-              sep=sep, profile=profile, max_deg=max_deg, axis=axis, lit=lit)
+              sep=sep, profile=profile, max_deg=max_deg, axis=axis, lit=lit, n_view=n_view)
     fast = fast_frames(X_WO, fast_span, fast_rate_deg, fast_dilate)
     _, _, a, c = axis
     if not axis[0] or not fast[1:].any():

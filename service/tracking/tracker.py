@@ -742,7 +742,8 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
     feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
     common = dict(tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
                   smooth=1 if cfg.spin_twist_smooth > 1 else cfg.spin_smooth,  # twist filtered instead (below)
-                  match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)
+                  match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg,
+                  n_view=cfg.spin_view_anchors)
     common["tau"] = _spin_tau(model, cfg)
     if cfg.spin_lit_frac > 0:  # the light's features on a rolling body dropped from the votes (spin.lit_matches)
         from service.tracking.spin import LitTest

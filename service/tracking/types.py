@@ -271,6 +271,12 @@ class TrackingConfig:
     # correction median-filtered over spin_smooth as before (docs/tracking.md "Twist smoothed instead of the correction";
     # development bottle pivots 911 7.05° -> 4.17°, 553 7.08° -> 3.53° worst frame)
     spin_twist_smooth: int = 15
+    # spin closure (spin.spin_closure, every solver): besides frame 0, the 3 latest and up to 8 older anchors spread
+    # over the session, a frame's spin is voted against this many older anchors whose corrected poses are turned
+    # least from its own (the same view of the body: the view-dependent bias of the votes, keypoints that shift with
+    # the view and depth noise turned into azimuth, is alike at both ends and cancels); 0: off (docs/tracking.md
+    # "Anchors from the nearest views"; off: with 4, evaluation 711 worst 6.26 -> 5.48 deg but 704 median 1.44 -> 2.45)
+    spin_view_anchors: int = 0
     # a body of revolution does not turn about its own axis while it topples (service.tracking.fall: no force on it
     # has a moment about the axis): over a topple of the tracked poses (the axis' angle from the vertical changing by
     # more than spin_fall_rate_deg per frame and by >= spin_fall_min_deg in all, trimmed by spin_fall_edge_deg at
@@ -348,7 +354,7 @@ class TrackingConfig:
                      "spin_border_px", "spin_tol", "spin_inlier_deg", "kf_still_rate_deg", "kf_still_max_frames",
                      "crease_dist", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
                      "landing_table_margin", "landing_table_frac", "landing_seen_frac", "spin_lit_frac",
-                     "spin_lit_move", "spin_lit_lie_deg", "spin_lit_keep"):
+                     "spin_lit_move", "spin_lit_lie_deg", "spin_lit_keep", "spin_view_anchors"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         for name in ("spin_features", "spin_min_votes", "spin_smooth"):
