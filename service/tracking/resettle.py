@@ -49,8 +49,9 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
 7. The frames at rest before the settled frame (``resettle_flush_rest_tol``): the settled frame i comes
    ``delay`` frames after the last fast step, so the frames between the landing and i, at rest already, kept
    their own (fall or landing) poses. Walking back from i, every frame whose object points lie on frame i's
-   (``still_fit``: the object has not moved between them, seen by the frames themselves, no pose involved) takes
-   frame i's pose as its start and joins the stretch (laid flush, registered again).
+   (``still_fit``) and whose ORB keypoints lie within a few millimetres of their partners in frame i (the object
+   has not moved, seen by the frames themselves, no pose involved) takes frame i's final pose moved by the small
+   rigid motion its keypoints show (the last slide or rocking of a landed box; ``tracker._rest_before``).
 What is left: the join is 0.5–2° off (a yaw the table does not fix) and up to 9 mm sideways; the base test is a lower bound of the slide
 along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile

@@ -372,4 +372,4 @@ def test_flush_rest_validated():
         TrackingConfig(resettle_flush_rest_frac=0.0)
     with pytest.raises(ValueError, match="resettle_flush_rest_tol"):
         TrackingConfig(resettle_flush_rest_matches=2.5)
-    assert TrackingConfig().resettle_flush_rest_tol == 0.0
+    assert TrackingConfig().resettle_flush_rest_tol == 0.002
