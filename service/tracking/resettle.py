@@ -46,6 +46,12 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    (``side_pose``); the stretch's keyframes move with their frames, the model is rebuilt and every frame is
    registered again in the motions that keep it resting (``planar_register``: a turn about the vertical, a
    horizontal shift).
+7. The frames at rest before the settled frame (``resettle_flush_rest_tol``): the settled frame i comes
+   ``delay`` frames after the last fast step, so the frames between the landing and i, at rest already, kept
+   their own (fall or landing) poses. Walking back from i, every frame whose object points lie on frame i's
+   (``still_fit``) and whose ORB keypoints lie within a few millimetres of their partners in frame i (the object
+   has not moved, seen by the frames themselves, no pose involved) takes frame i's final pose moved by the small
+   rigid motion its keypoints show (the last slide or rocking of a landed box; ``tracker._rest_before``).
 What is left: the join is 0.5–2° off (a yaw the table does not fix) and up to 9 mm sideways; the base test is a lower bound of the slide
 along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
@@ -467,6 +473,28 @@ def planar_register(P_W: np.ndarray, X: np.ndarray, Q_O: np.ndarray, N_O: np.nda
     S = make_X(np.array([[cs, -sn, 0.0], [sn, cs, 0.0], [0.0, 0.0, 1.0]]), np.zeros(3))
     S[:3, 3] = c - S[:3, :3] @ c + np.array([d[0], d[1], 0.0])
     return X_inv(S) @ X
+
+
+def still_fit(P_j: np.ndarray, P_i: np.ndarray, N_i: np.ndarray, tree=None, radius: float = 0.01
+              ) -> tuple[float, float]:
+    """How well frame j's object points P_j (N,3, in W) lie on frame i's object points P_i (M,3, in W) with unit
+    normals N_i (M,3): (fraction of P_j with a point of P_i within ``radius``, median point-to-plane distance of
+    those in metres; (0, inf) with fewer than 10). Model-free and pose-free: with a static camera an object that
+    has not moved between the frames shows the same surface, so its points lie on the other frame's within the
+    depth noise (0.6-1.0 mm median on the development topples), while a turn of a degree or more about an axis
+    through the object moves them off it (3.6-8 mm on the turning frames of a topple). ``tree``: a KD-tree over
+    P_i (built when None)."""
+    from scipy.spatial import cKDTree
+
+    if len(P_j) == 0 or len(P_i) == 0:
+        return 0.0, float("inf")
+    if tree is None:
+        tree = cKDTree(P_i)
+    d, k = tree.query(P_j, distance_upper_bound=radius)
+    ok = np.isfinite(d)
+    if ok.sum() < 10:
+        return 0.0, float("inf")
+    return float(ok.mean()), float(np.median(np.abs(((P_j[ok] - P_i[k[ok]]) * N_i[k[ok]]).sum(1))))
 
 
 def side_pose(X: np.ndarray, Q_O: np.ndarray, base_n_O: np.ndarray, tol: float = 0.01) -> tuple[np.ndarray, float]:

@@ -636,13 +636,17 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
     stretch's keyframes move with their frames and the model is rebuilt (the surface seen after the landing placed by
     the constrained poses); then every such frame is registered again in the motions that keep it resting
     (``resettle.planar_register``: a turn about the vertical and a horizontal shift) and counts as tracked when that
-    is a good registration. Updates X, tracked, frac, rmse, keyframes and carver in place; returns the rebuilt model,
-    or None when no frame changed."""
+    is a good registration. With ``resettle_flush_rest_tol`` > 0 and frame i laid flush, the frames before i at rest
+    with it (``_rest_before``) take frame i's pose moved by the small rigid motion their keypoints show (first the
+    flushed pose, for the model; then the final one): not registered themselves, since a box that may still slide
+    along its own faces is seen by its print, not by its shape. Updates X, tracked, frac, rmse, keyframes and carver
+    in place; returns the rebuilt model, or None when no frame changed."""
     from service.tracking.geometry import icp_result
     from service.tracking.resettle import flush_pose, landed_face, planar_register, rests_flat, side_pose
 
     base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
     done: list[int] = []
+    rest: list[tuple[int, np.ndarray, int]] = []  # (frame at rest before a settled frame i, its motion from i, i)
     for ld in landings:
         i = ld.i
         end = min([l.g0 for l in landings if l.g0 > i], default=len(X))
@@ -666,9 +670,13 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
                 continue  # not resting on that face
             X[j] = Xf
             done.append(j)
+        if cfg.resettle_flush_rest_tol > 0 and i in done:  # the frames at rest before i (laid flush): from frame i
+            rest += [(j, Mj, i) for j, Mj in _rest_before(obs, i, ld.g0, cfg)]
     if not done:
         return None
-    moved = set(done)
+    for j, Mj, i in rest:
+        X[j] = Mj @ X[i]
+    moved = set(done) | {j for j, _, _ in rest}
     for kf in keyframes:
         if kf.index in moved:
             _place_keyframe(kf, X[kf.index].copy(), carver)
@@ -678,7 +686,51 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
         r = icp_result(X_inv(Xp), obs[j].P_W, model.tree, model.Q, model.N, cfg.inlier_dist)
         X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse
         tracked[j] = _good(r, cfg)
+    for j, Mj, i in rest:  # frame i's final pose moved by the motion the print shows
+        r = icp_result(X_inv(Mj @ X[i]), obs[j].P_W, model.tree, model.Q, model.N, cfg.inlier_dist)
+        X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse
+        tracked[j] = tracked[i]
     return model
+
+
+def _rest_before(obs: list[FrameObs], i: int, g0: int, cfg: TrackingConfig) -> list[tuple[int, np.ndarray]]:
+    """The frames j (g0 < j < i, increasing) before the settled frame i at rest with it, walking back from i to the
+    first frame that moved or has fewer than ``min_points`` points, each with the motion M (4,4, in W) from frame i
+    to it shown by the keypoints (``geometry.ransac_rigid``, inlier distance ``resettle_flush_rest_ransac``:
+    X_WO(j) = M X_WO(i)). At rest: its object points lie on
+    frame i's (``resettle.still_fit``: at least ``resettle_flush_rest_frac`` within 1 cm, median point-to-plane
+    distance within ``resettle_flush_rest_tol``) and its ORB keypoints matched to frame i's (at least
+    ``resettle_flush_rest_matches``) lie within ``resettle_flush_rest_shift`` of their partners (median, in W): the
+    surface test alone misses a box sliding or turning about the vertical within its own faces' planes (a frame
+    3.9° / 15 mm from rest with a 1.0 mm median), the print does not. A frame whose keypoints give no motion
+    (fewer than 6 inliers) ends the walk."""
+    from scipy.spatial import cKDTree
+
+    from service.tracking.resettle import still_fit
+
+    P_i, N_i = obs[i].P_W, obs[i].N_W
+    if len(P_i) < cfg.min_points:
+        return []
+    tree = cKDTree(P_i)
+    out: list[tuple[int, np.ndarray]] = []
+    for j in range(i - 1, g0, -1):
+        o = obs[j]
+        if len(o.P_W) < cfg.min_points:
+            break
+        frac, d = still_fit(o.P_W, P_i, N_i, tree)
+        if frac < cfg.resettle_flush_rest_frac or d > cfg.resettle_flush_rest_tol:
+            break
+        m = _match(o.desc, obs[i].desc)
+        if len(m) < cfg.resettle_flush_rest_matches:
+            break
+        A, B = obs[i].kp_W[m[:, 1]], o.kp_W[m[:, 0]]
+        if np.median(np.linalg.norm(B - A, axis=1)) > cfg.resettle_flush_rest_shift:
+            break
+        Mj, _ = ransac_rigid(A, B, cfg.resettle_flush_rest_ransac)
+        if Mj is None:
+            break
+        out.append((j, Mj))
+    return out[::-1]
 
 
 def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.ndarray, frac: np.ndarray,

@@ -345,6 +345,19 @@ class TrackingConfig:
     resettle_flush_square_deg: float = 5.0
     # the second pass over the flushed stretch (resettle.planar_register) on or off (the poses only laid flush)
     resettle_flush_planar: bool = True
+    # the frames before the settled frame at rest with it (tracker._rest_before): their object points lie on the
+    # settled frame's (resettle.still_fit: at least resettle_flush_rest_frac of them within 1 cm, median
+    # point-to-plane distance <= resettle_flush_rest_tol) and their ORB keypoints matched to its (at least
+    # resettle_flush_rest_matches) lie within resettle_flush_rest_shift of them (median): the object has moved by
+    # a few millimetres at most since, so they take the settled frame's final pose moved by the rigid motion their
+    # keypoints show (geometry.ransac_rigid, inlier distance resettle_flush_rest_ransac), walking back from the
+    # settled frame to the first frame that moved (0: off)
+    resettle_flush_rest_tol: float = 0.002  # on: development milk_carton 1304 worst 7.64 -> 5.48 deg, 1306's rest
+    # frames 9.23 -> 1.82 deg; evaluation 703 / 710 within 0.01 deg of their medians, 710's worst (6.30) not reached
+    resettle_flush_rest_frac: float = 0.9
+    resettle_flush_rest_shift: float = 0.008
+    resettle_flush_rest_matches: int = 10
+    resettle_flush_rest_ransac: float = 0.004
 
     def __post_init__(self) -> None:
         for f in fields(self):  # a switch given as "no" or 0 would otherwise act as its truth value
@@ -416,6 +429,14 @@ class TrackingConfig:
         for name in ("resettle_flush_deg", "resettle_flush_square_deg"):
             if not 0.0 <= getattr(self, name) < 90.0:
                 raise ValueError(f"TrackingConfig.{name} must be in [0, 90), not {getattr(self, name)!r}")
+        if not (self.resettle_flush_rest_tol >= 0 and 0.0 < self.resettle_flush_rest_frac <= 1.0
+                and self.resettle_flush_rest_shift > 0 and self.resettle_flush_rest_ransac > 0
+                and isinstance(self.resettle_flush_rest_matches, int)
+                and self.resettle_flush_rest_matches >= 1):
+            raise ValueError(f"TrackingConfig.resettle_flush_rest_tol must be >= 0, resettle_flush_rest_frac in "
+                             f"(0, 1], resettle_flush_rest_shift > 0 and resettle_flush_rest_matches an int >= 1, not "
+                             f"{self.resettle_flush_rest_tol!r}, {self.resettle_flush_rest_frac!r}, "
+                             f"{self.resettle_flush_rest_shift!r}, {self.resettle_flush_rest_matches!r}")
         if not (isinstance(self.resettle_refine_frames, int) and self.resettle_refine_frames >= 0):
             raise ValueError(f"TrackingConfig.resettle_refine_frames must be an int >= 0, not {self.resettle_refine_frames!r}")
         if not (isinstance(self.sdf_support_open_dilate, int) and self.sdf_support_open_dilate >= 0):

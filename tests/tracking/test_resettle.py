@@ -273,3 +273,103 @@ def test_no_flush_face_on_a_curved_body():
     Q, Nb = box_faces(step=0.004)
     assert has_flat_side(Q, Nb, np.array([0.0, 0.0, -1.0]))
     assert landed_face(Q, Nb, settled_truth(make_X(np.eye(3), np.array([0.5, 0.0, SIZE[2] / 2])), 0.0), 0.0) is not None
+
+
+def _seen_points(X: np.ndarray, rng: np.random.Generator, n: int = 800, noise: float = 0.0008
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Points and normals (in W) of the lying box at pose X seen from above and the +x side (a camera's view: the
+    faces whose normals point up or toward +x), n of them with depth noise along the normal."""
+    Q, N = box_faces(step=0.003)
+    P, Nw = Q @ X[:3, :3].T + X[:3, 3], N @ X[:3, :3].T
+    vis = (Nw[:, 2] > 0.5) | (Nw[:, 0] > 0.5)
+    P, Nw = P[vis], Nw[vis]
+    k = rng.choice(len(P), n, replace=False)
+    return P[k] + rng.normal(0.0, noise, (n, 1)) * Nw[k], Nw[k]
+
+
+def test_still_fit_tells_a_resting_frame_from_a_turning_one():
+    """Two noisy views of the lying box at rest: nearly all points match within 1 cm, median point-to-plane distance
+    about the noise (< 1.2 mm); the box turned 10° about its long axis: the median goes over 2 mm or the matched
+    fraction under 0.9; slid 15 mm along its long axis (every seen face slides in its own plane) it still fits (what
+    the keypoint test of ``_rest_before`` is for); too few points: no fit."""
+    from service.tracking.resettle import still_fit
+
+    rng = np.random.default_rng(5)
+    X_t = settled_truth(make_X(np.eye(3), np.array([0.5, 0.0, SIZE[2] / 2])), 0.0)
+    P_i, N_i = _seen_points(X_t, rng)
+    P_j, _ = _seen_points(X_t, rng)
+    frac, d = still_fit(P_j, P_i, N_i)
+    assert frac > 0.95 and d < 0.0012
+    R = so3_exp(X_t[:3, 2] * np.radians(10.0))  # about the box's long axis (lying horizontal), through its centre
+    frac10, d10 = still_fit(_seen_points(make_X(R @ X_t[:3, :3], X_t[:3, 3]), rng)[0], P_i, N_i)
+    assert frac10 < 0.9 or d10 > 0.002
+    slid = X_t.copy()
+    slid[:3, 3] += 0.015 * X_t[:3, 2]
+    frac_s, d_s = still_fit(_seen_points(slid, rng)[0], P_i, N_i)
+    assert frac_s > 0.9 and d_s < 0.0015
+    assert still_fit(P_j[:5], P_i, N_i) == (0.0, float("inf"))
+
+
+def test_rest_before_walks_back_to_the_first_frame_that_moved():
+    """A box turning onto its side (40°, 25°, 12° before the landing about the landing edge), then 4 frames at rest;
+    the last is the settled frame: the frames at rest before it are found, not the turning ones. A frame slid
+    15 mm along the box's long axis (its surface fits, ``still_fit``) is told by its keypoints (each printed point a
+    fixed ORB descriptor) and ends the walk; a frame without points ends it too."""
+    from service.tracking.resettle import still_fit
+    from service.tracking.tracker import FrameObs, _rest_before
+    from service.tracking.types import TrackingConfig
+
+    rng = np.random.default_rng(6)
+    X_t = settled_truth(make_X(np.eye(3), np.array([0.5, 0.0, SIZE[2] / 2])), 0.0)
+    pivot = X_t[:3, 3] + np.array([0.0, -SIZE[0] / 2, -SIZE[1] / 2])
+    Q, N = box_faces(step=0.003)
+    kp = rng.choice(len(Q), 150, replace=False)  # printed points on the box, in O, with their descriptors
+    desc = rng.integers(0, 256, (150, 32), dtype=np.uint8)
+
+    def before(deg: float) -> np.ndarray:  # the pose deg before the landing, turned back about the landing edge
+        R = so3_exp(np.array([1.0, 0.0, 0.0]) * np.radians(deg))
+        return make_X(R @ X_t[:3, :3], pivot + R @ (X_t[:3, 3] - pivot))
+
+    def frame(X: np.ndarray) -> "FrameObs":
+        P, Nw = _seen_points(X, rng)
+        up = (N[kp] @ X[:3, :3].T)
+        vis = (up[:, 2] > 0.5) | (up[:, 0] > 0.5)
+        K = Q[kp][vis] @ X[:3, :3].T + X[:3, 3] + rng.normal(0.0, 0.001, (vis.sum(), 3))
+        return FrameObs(P, Nw, K, desc[vis], len(P))
+
+    slid = X_t.copy()
+    slid[:3, 3] += 0.015 * X_t[:3, 2]
+    def frames(rest):
+        return [j for j, _ in rest]
+
+    cfg = TrackingConfig(resettle_flush_rest_tol=0.002)
+    Rz = so3_exp(np.array([0.0, 0.0, np.radians(1.0)]))  # turned 1° about the vertical through the box, slid 3.6 mm
+    nudged = make_X(Rz, X_t[:3, 3] - Rz @ X_t[:3, 3] + np.array([0.003, 0.002, 0.0])) @ X_t
+    obs = [frame(X) for X in (before(40.0), before(25.0), before(12.0), nudged, X_t, X_t, X_t)]
+    rest = _rest_before(obs, 6, 0, cfg)
+    assert frames(rest) == [3, 4, 5]
+    d_t, d_r = pose_distance(rest[0][1] @ X_t, nudged)  # the nudge (1°, 3.6 mm) measured by the keypoints
+    assert d_r < 0.3 and d_t < 0.001
+    assert pose_distance(rest[1][1] @ X_t, X_t)[0] < 0.001
+    assert pose_distance(X_t, nudged)[0] > 0.003
+    assert frames(_rest_before(obs, 6, 4, cfg)) == [5]
+    obs[4] = frame(slid)
+    frac, d = still_fit(obs[4].P_W, obs[6].P_W, obs[6].N_W)
+    assert frac >= 0.9 and d <= 0.002  # the surface alone would call it at rest
+    assert frames(_rest_before(obs, 6, 0, cfg)) == [5]
+    obs[4] = FrameObs(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3)), None, 0)
+    assert frames(_rest_before(obs, 6, 0, cfg)) == [5]
+
+
+def test_flush_rest_validated():
+    import pytest
+
+    from service.tracking import TrackingConfig
+
+    with pytest.raises(ValueError, match="resettle_flush_rest_tol"):
+        TrackingConfig(resettle_flush_rest_tol=-0.001)
+    with pytest.raises(ValueError, match="resettle_flush_rest_tol"):
+        TrackingConfig(resettle_flush_rest_frac=0.0)
+    with pytest.raises(ValueError, match="resettle_flush_rest_tol"):
+        TrackingConfig(resettle_flush_rest_matches=2.5)
+    assert TrackingConfig().resettle_flush_rest_tol == 0.002
