@@ -333,6 +333,14 @@ class TrackingConfig:
     # its axis than across (service.tracking.tilt; only with spin_closure on; docs/tracking.md "Eggs: where the error comes
     # from"; the evaluation sessions, egg 707 included, identical bit for bit)
     spin_tilt: bool = True  # development eggs 512 7.31 -> 5.54 deg median, 922 17.05 -> 14.39, 924 3.23 -> 1.54
+    # egg-like bodies (as spin_tilt): after the closures, up to spin_rounds more rounds, each rebuilding the model from
+    # the keyframe points placed at the corrected poses and running the closures again from the corrected poses; a
+    # round is kept only when its spin correction stays within spin_rounds_max_deg in every frame (the texture agrees
+    # with the corrected poses: a refinement, not a new estimate), else it and the later rounds are dropped
+    # (tracker._spin_rounds; 0: off; docs/tracking.md "Eggs: where the loop loses the roll"; development egg 1364
+    # 2.16 -> 1.75 deg median, eleven eggs identical; evaluation egg 707 6.82 -> 6.75, the others identical)
+    spin_rounds: int = 2
+    spin_rounds_max_deg: float = 5.0
     # the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass): the face
     # of the pre-fall model that lies on the table at the settled frame (resettle.landed_face) is laid flush with the
     # table in every frame of the stretch whose pose has it within resettle_flush_deg of flat (resettle.flush_pose:
@@ -390,6 +398,10 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_mixed_votes must be >= 0, not {self.spin_mixed_votes!r}")
         if not self.spin_mixed_dilate >= 0:
             raise ValueError(f"TrackingConfig.spin_mixed_dilate must be >= 0, not {self.spin_mixed_dilate!r}")
+        if not (isinstance(self.spin_rounds, int) and self.spin_rounds >= 0):
+            raise ValueError(f"TrackingConfig.spin_rounds must be an int >= 0, not {self.spin_rounds!r}")
+        if not self.spin_rounds_max_deg > 0:
+            raise ValueError(f"TrackingConfig.spin_rounds_max_deg must be > 0, not {self.spin_rounds_max_deg!r}")
         if not (isinstance(self.spin_twist_smooth, int) and self.spin_twist_smooth >= 0):
             raise ValueError(f"TrackingConfig.spin_twist_smooth must be an int >= 0, not {self.spin_twist_smooth!r}")
         for name in ("spin_graph_gate_deg", "spin_graph_rate_deg"):
