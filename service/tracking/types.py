@@ -337,9 +337,10 @@ class TrackingConfig:
     # the keyframe points placed at the corrected poses and running the closures again from the corrected poses; a
     # round is kept only when its spin correction stays within spin_rounds_max_deg in every frame (the texture agrees
     # with the corrected poses: a refinement, not a new estimate), else it and the later rounds are dropped
-    # (tracker._spin_rounds; 0: off; docs/tracking.md "Eggs: where the loop loses the roll"; development egg 1364
-    # 2.16 -> 1.75 deg median, eleven eggs identical; evaluation egg 707 6.82 -> 6.75, the others identical)
-    spin_rounds: int = 2
+    # (tracker._spin_rounds; 0: off, the default; 2 tried: docs/tracking.md "Eggs: where the loop loses the roll";
+    # development egg 1364 2.16 -> 1.75 deg median, one of the eggs the cap was set on, the six eggs made after it
+    # identical; evaluation egg 707 6.82 / 28.44 -> 6.75 / 28.52, the others identical: no gain beyond noise)
+    spin_rounds: int = 0
     spin_rounds_max_deg: float = 5.0
     # the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass): the face
     # of the pre-fall model that lies on the table at the settled frame (resettle.landed_face) is laid flush with the

@@ -100,7 +100,7 @@ def test_not_egg_left_alone(stubs, monkeypatch):
 
 
 def test_config():
-    assert TrackingConfig().spin_rounds == 2 and TrackingConfig().spin_rounds_max_deg == 5.0
+    assert TrackingConfig().spin_rounds == 0 and TrackingConfig().spin_rounds_max_deg == 5.0
     for bad in (dict(spin_rounds=-1), dict(spin_rounds=1.5), dict(spin_rounds_max_deg=0.0)):
         with pytest.raises(ValueError):
             TrackingConfig(**bad)
