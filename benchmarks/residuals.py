@@ -2,14 +2,16 @@
 reliably it recovers hidden effects in simulated tosses.
 
 Synthetic: cube tosses simulated with one hidden effect (0.15 mm tracking noise, 20 tosses), and a
-30 Hz pushing session with a hidden object-table friction; the loop starts from the base model.
+30 Hz pushing session with a hidden object-table friction; the loop starts from the base model. The tosses are made by
+tests/residuals/lab.py with its contact breaking threshold (1 mm, so that a declared restitution is the bounce the data
+show; ``--toss-contact-breaking off`` makes them as before, with Bullet's 0.02 m, docs/residuals.md §7).
 
 Real data: base model = the true-size cube (side 0.1048 m, mass 0.37 kg, μ 0.15, uniform-density
 inertia m s²/6), table at z = 0, no robot. Tosses are split into training and held-out tosses
 (seeded); every figure printed for "held-out" is on tosses the fits never saw.
 
     python benchmarks/residuals.py real [--max-tosses N] [--plots DIR]
-    python benchmarks/residuals.py synthetic [--seeds 1 2 3 4 5]
+    python benchmarks/residuals.py synthetic [--seeds 1 2 3 4 5] [--toss-contact-breaking M|off]
     python benchmarks/residuals.py lab [--seeds 601 602] [--cases none clock_offset ...] [--exact-model]
     python benchmarks/residuals.py strike [--seeds 601 602] [--cases none friction tilt ...] [--candidates ...]
         [--true-split] [--pose-noise 0]
@@ -200,6 +202,9 @@ def synthetic(args) -> None:
                               **_sim_settings(args), **args.config)
     import resource
 
+    # the generator's contact breaking threshold: its default (1 mm) unless --toss-contact-breaking is given
+    toss_cb = {} if args.toss_contact_breaking is None else {
+        "contact_breaking_m": None if args.toss_contact_breaking == "off" else args.toss_contact_breaking}
     rows = []
     t_all, c_all = time.time(), resource.getrusage(resource.RUSAGE_SELF).ru_utime
     if args.cases:
@@ -207,7 +212,7 @@ def synthetic(args) -> None:
     for hidden, key in cases:
         for seed in args.seeds:
             t0, c0 = time.time(), resource.getrusage(resource.RUSAGE_SELF).ru_utime
-            trajs = simulate_tosses(lab_cube(), hidden, n=20, seed=seed, noise_m=1.5e-4)
+            trajs = simulate_tosses(lab_cube(), hidden, n=20, seed=seed, noise_m=1.5e-4, **toss_cb)
             out = run(ResidualInputs(lab_cube(), trajs, 0.0), dataclasses.replace(cfg, seed=seed))
             ok = out.accepted == ((key,) if key else ())
             val = out.effects.get(key) if key else None
@@ -520,6 +525,10 @@ def main() -> None:
     s.add_argument("--no-pushing", action="store_true")
     s.add_argument("--config", default={}, type=_config_json,
                    help='JSON of ResidualConfig fields for the toss cases, e.g. \'{"init_fit_frames_flight": 41}\'')
+    s.add_argument("--toss-contact-breaking", default=None, metavar="M", type=_off_or_float,
+                   help="contact breaking threshold of the toss generator (tests/residuals/lab.py) in m, or 'off' for "
+                        "Bullet's 0.02 m (the generator before docs/residuals.md §7 'The toss generator's bounce'); "
+                        "default: the generator's default, 1 mm")
     lb = sub.add_parser("lab")
     lb.add_argument("--seeds", type=int, nargs="+", default=[601, 602])
     lb.add_argument("--cases", nargs="+", default=list(LAB_CASES), choices=list(LAB_CASES))

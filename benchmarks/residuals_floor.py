@@ -72,11 +72,11 @@ def true_tosses(model, hidden, n, seed, noise_m, fps=148.0, duration=0.7):
     from service.residuals.simulate import BulletSimulator
     from service.residuals.types import ObservedTrajectory, SimRequest
     from service.transforms import so3_exp
-    from tests.residuals.lab import SIDE, toss_starts
+    from tests.residuals.lab import SIDE, TOSS_CONTACT_BREAKING_M, toss_starts
 
     rng = np.random.default_rng(seed + 1000)
     t = np.arange(int(duration * fps)) / fps
-    sim = BulletSimulator(0.002)
+    sim = BulletSimulator(0.002, contact_breaking_m=TOSS_CONTACT_BREAKING_M)
     rec = _Recorder(sim._p)
     sim._p = rec
     obs, truth = [], []
