@@ -421,7 +421,8 @@ def strike(args) -> None:
                                       fit_maxiter=24, max_train_segments=10,
                                       nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
                                       unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check, **_sim_settings(args),
-                                      sphere_drive=args.sphere_drive)
+                                      sphere_drive=args.sphere_drive, robot_smooth_weights=args.robot_smooth_weights,
+                                      **({} if args.robot_smooth is None else {"robot_smooth_s": args.robot_smooth}))
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
             if args.true_split:
@@ -543,6 +544,12 @@ def main() -> None:
     st.add_argument("--sphere-drive", choices=("lead", "inverse"), default="lead",
                     help="how the rollouts drag the sphere along the measured path (ResidualConfig.sphere_drive, "
                          "docs/residuals.md §6): lead (the default) or inverse (the constraint's update inverted)")
+    st.add_argument("--robot-smooth-weights", choices=("box", "biweight"), default="box",
+                    help="weights of the local quadratic fit that smooths the measured sphere path "
+                         "(ResidualConfig.robot_smooth_weights, docs/residuals.md §7): box (Savitzky-Golay, the default) "
+                         "or biweight")
+    st.add_argument("--robot-smooth", type=float, default=None, metavar="S",
+                    help="window of that fit in s (ResidualConfig.robot_smooth_s; default: the config's, 0.04)")
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
     for sp in (r, s, lb, st):
@@ -567,6 +574,8 @@ def main() -> None:
     # refused before any session is made (naming the flag), not by a traceback from the loop's config
     if args.folds < 1:
         ap.error(f"--folds: expected an integer >= 1, got {args.folds}")
+    if getattr(args, "robot_smooth", None) is not None and args.robot_smooth < 0:
+        ap.error(f"--robot-smooth: expected a window >= 0 s, got {args.robot_smooth}")
     if getattr(args, "pose_noise", 0.0) < 0:
         ap.error(f"--pose-noise: expected a noise level >= 0 m, got {args.pose_noise}")
     if getattr(args, "candidates", None):

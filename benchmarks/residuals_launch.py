@@ -61,8 +61,9 @@ def launch(args) -> None:
     from tests.residuals.synthlab import perturbed_model
 
     ls = _session(args.seed, args.b, args.mu, 5e-4 if args.noise else 0.0, args.noise)
-    cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3, robot_smooth_s=0.04 if args.noise else args.smooth,
-                              sim_substep_s=args.substep)
+    smooth = args.smooth if args.smooth is not None else (0.04 if args.noise else 0.0)
+    cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3, robot_smooth_s=smooth, sim_substep_s=args.substep,
+                              robot_smooth_weights=args.smooth_weights)
     model = perturbed_model(ls)
     model = dataclasses.replace(model, friction=Friction(args.mu, model.friction.object_robot))
     segs, starts, _ = _blocks(ls, model, cfg)
@@ -79,7 +80,8 @@ def launch(args) -> None:
             print(f"  launch block at frame {s.start:4d}: observed travel {np.linalg.norm(P[-1] - P[0]) * 1e3:5.1f} mm, "
                   f"peak frame speed {u.max():.3f} m/s; rollout travel x {travel[-1]:.3f}, peak x {peak[-1]:.3f}")
     print(f"seed {args.seed}, b {args.b} /s, mu {args.mu}, drive {args.drive}, sub-step {args.substep * 1e3:.2f} ms, "
-          f"{'noisy poses and robot path (smoothed 0.04 s)' if args.noise else 'noise-free'}: {len(travel)} launches, "
+          f"{'noisy poses and robot path' if args.noise else 'noise-free'}, robot path smoothed {smooth:.3f} s "
+          f"({args.smooth_weights}): {len(travel)} launches, "
           f"rollout / observed travel median {np.median(travel):.3f} (mean {np.mean(travel):.3f}), peak speed median "
           f"{np.median(peak):.3f}")
 
@@ -96,6 +98,7 @@ def loss(args) -> None:
     cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3, seed=args.seed, fit_maxiter=24, max_train_segments=10)
     if args.smooth is not None:
         cfg = dataclasses.replace(cfg, robot_smooth_s=args.smooth)
+    cfg = dataclasses.replace(cfg, robot_smooth_weights=args.smooth_weights)
     model = perturbed_model(ls)
     segs, starts, _ = _blocks(ls, model, cfg)
     eff = REGISTRY["linear_damping"]
@@ -146,7 +149,8 @@ def main() -> None:
     la.add_argument("--noise", action="store_true", help="the benchmark's pose noise and the lab's robot sensor noise")
     la.add_argument("--mu", type=float, default=0.15)
     la.add_argument("--substep", type=float, default=0.002)
-    la.add_argument("--smooth", type=float, default=0.0)
+    la.add_argument("--smooth", type=float, default=None,
+                    help="window of the robot path's smoothing, s (default: 0.04 with --noise, else 0)")
     lo = sub.add_parser("loss")
     lo.add_argument("--pose-noise", type=float, default=5e-4)
     lo.add_argument("--no-robot-noise", action="store_true")
@@ -156,6 +160,8 @@ def main() -> None:
         p.add_argument("--seed", type=int, required=True)
         p.add_argument("--b", type=float, default=2.0, help="hidden linear damping, 1/s (0: none)")
         p.add_argument("--drive", choices=("lead", "inverse"), default="lead")
+        p.add_argument("--smooth-weights", choices=("box", "biweight"), default="box",
+                       help="weights of the robot path's local quadratic fit (ResidualConfig.robot_smooth_weights)")
     args = ap.parse_args()
     print("command:", " ".join(["python", *sys.argv]))
     {"launch": launch, "loss": loss}[args.cmd](args)

@@ -87,6 +87,10 @@ class ResidualInputs:
 # how the built-in simulator drags the robot sphere along its measured path (``ResidualConfig.sphere_drive``,
 # ``simulate.BulletSimulator``)
 SPHERE_DRIVES: tuple[str, ...] = ("lead", "inverse")
+# the weights of the local quadratic fit that smooths the measured sphere path (``ResidualConfig.robot_smooth_weights``,
+# ``loop.smooth_robot``): "box" = equal weights (Savitzky-Golay), "biweight" = (1 - (k / (H + 1))^2)^2, vanishing
+# smoothly at the window's edges
+ROBOT_SMOOTH_WEIGHTS: tuple[str, ...] = ("box", "biweight")
 
 
 @dataclass(frozen=True)
@@ -174,6 +178,12 @@ class ResidualConfig:
     launch_lead: int = 2  # frames of rest at the start of a launch block
     launch_max_s: float = 1.0  # longest launch block, s
     robot_smooth_s: float = 0.04  # Savitzky-Golay window on the measured sphere path before the rollouts, s (0: off)
+    # the weights of that local quadratic fit (ROBOT_SMOOTH_WEIGHTS; docs/residuals.md §7, "The sphere path's velocity
+    # noise at the launch"): "box" (Savitzky-Golay, equal weights) or "biweight" (weights vanishing smoothly at the
+    # window's edges: still exact for a constant acceleration, and the path's sample-to-sample increments, the
+    # velocity the rollouts hand a struck object, keep far less of the sensor noise). Default "box" (every output as
+    # before)
+    robot_smooth_weights: str = "box"
     # how the built-in simulator drags the sphere along the measured path (simulate.SPHERE_DRIVES; docs/residuals.md
     # §6 and §7, "Linear damping fitted low on strikes"): "lead" reads the path the constraint's steady lag ahead (exact
     # at a constant velocity; at a strike's brake the sphere rounds its speed peak and launches the object 1.5-2.5 %
@@ -196,6 +206,9 @@ class ResidualConfig:
     def __post_init__(self) -> None:
         if self.sphere_drive not in SPHERE_DRIVES:
             raise ValueError(f"ResidualConfig.sphere_drive must be one of {SPHERE_DRIVES}, not {self.sphere_drive!r}")
+        if self.robot_smooth_weights not in ROBOT_SMOOTH_WEIGHTS:
+            raise ValueError(f"ResidualConfig.robot_smooth_weights must be one of {ROBOT_SMOOTH_WEIGHTS}, "
+                             f"not {self.robot_smooth_weights!r}")
         if not isinstance(self.lookalike_check, bool):
             raise ValueError(f"ResidualConfig.lookalike_check must be a bool, not {self.lookalike_check!r}")
         for name in ("max_base_error_rel_learned", "launch_speed", "launch_max_s"):
