@@ -6,17 +6,19 @@ loop. Baking-box strike sessions of the synthetic lab (30 s, 30 Hz, the strike b
 model, declared friction 0.15 (the true one unless ``--mu``).
 
     python benchmarks/residuals_launch.py launch --seed 651 [--b 2.0] [--mu 0.15] [--noise] [--drive lead|inverse]
-        [--substep 0.002] [--smooth 0.0]
+        [--substep 0.002] [--smooth S] [--smooth-weights box|biweight]
         per launch block: the observed horizontal travel and peak frame speed against the rollout of the true model
         (noise-free poses and robot path, no smoothing unless --noise / --smooth)
     python benchmarks/residuals_launch.py loss --seed 651 [--b 2.0] [--pose-noise 5e-4] [--no-robot-noise]
-        [--drive lead|inverse] [--smooth S] [--grid 0 1.4 1.7 2.0 2.3 2.6]
+        [--drive lead|inverse] [--smooth 0.04] [--smooth-weights box|biweight] [--grid 0 1.4 1.7 2.0 2.3 2.6]
         the damping's training loss (the loop's blocks, start states and error) at each b of the grid, on the frames
         it is fitted on and split by frame kind (sliding, robot contact, rest, all, the last frame of each launch)
     python benchmarks/residuals_launch.py path --seeds 681 682 683 [--smooth 0.04] [--smooth-weights box|biweight]
         no rollout: the robot path the loop smooths, with and without the lab's sensor noise, against the true path —
         the velocity noise its sample-to-sample increments keep, and per strike the launch a kinematic sphere on it
         would hand a free 1-D object (pushed whenever the sphere reaches it, sliding with mu g = 1.47 m/s² otherwise)
+The subcommands' defaults are the loop's earlier ones (the lead drive, Savitzky-Golay over 0.04 s); the loop's defaults
+are now the inverse drive on a biweight fit over 0.08 s: --drive inverse --smooth-weights biweight --smooth 0.08.
 """
 
 from __future__ import annotations
@@ -100,9 +102,7 @@ def loss(args) -> None:
 
     ls = _session(args.seed, args.b, 0.15, args.pose_noise, not args.no_robot_noise)
     cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3, seed=args.seed, fit_maxiter=24, max_train_segments=10)
-    if args.smooth is not None:
-        cfg = dataclasses.replace(cfg, robot_smooth_s=args.smooth)
-    cfg = dataclasses.replace(cfg, robot_smooth_weights=args.smooth_weights)
+    cfg = dataclasses.replace(cfg, robot_smooth_s=args.smooth, robot_smooth_weights=args.smooth_weights)
     model = perturbed_model(ls)
     segs, starts, _ = _blocks(ls, model, cfg)
     eff = REGISTRY["linear_damping"]
@@ -199,7 +199,7 @@ def main() -> None:
     lo = sub.add_parser("loss")
     lo.add_argument("--pose-noise", type=float, default=5e-4)
     lo.add_argument("--no-robot-noise", action="store_true")
-    lo.add_argument("--smooth", type=float, default=None)
+    lo.add_argument("--smooth", type=float, default=0.04)
     lo.add_argument("--grid", type=float, nargs="+", default=[0.0, 1.4, 1.7, 2.0, 2.3, 2.6])
     pa = sub.add_parser("path")
     pa.add_argument("--seeds", type=int, nargs="+", required=True)

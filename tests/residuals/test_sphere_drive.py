@@ -69,7 +69,10 @@ def test_inverse_drive_hands_a_struck_cube_the_sphere_speed():
 
 
 def test_sphere_drive_setting():
-    assert ResidualConfig().sphere_drive == "lead"  # the default: every output as before
+    # the loop's default: the inverse drive on the biweight path (docs/residuals.md §7); the simulator built alone
+    # keeps the lead (its callers outside the loop replay as before)
+    cfg = ResidualConfig()
+    assert (cfg.sphere_drive, cfg.robot_smooth_weights, cfg.robot_smooth_s) == ("inverse", "biweight", 0.08)
     assert make_simulator().sphere_drive == "lead"
     with pytest.raises(ValueError, match="sphere_drive"):
         ResidualConfig(sphere_drive="exact")
@@ -79,7 +82,7 @@ def test_sphere_drive_setting():
 
 def test_biweight_smoothing_is_exact_for_a_constant_acceleration():
     """The biweight local quadratic fit keeps any quadratic path (a constant acceleration, a brake) exactly, edges
-    included; the default weights stay Savitzky-Golay (every output as before)."""
+    included; "box" is the Savitzky-Golay fit as before."""
     from scipy.signal import savgol_filter
 
     from service.residuals.loop import local_quadratic, smooth_robot
@@ -89,7 +92,8 @@ def test_biweight_smoothing_is_exact_for_a_constant_acceleration():
     assert np.abs(local_quadratic(p, 9) - p).max() < 1e-12
     noisy = p + np.random.default_rng(1).normal(scale=2e-4, size=p.shape)
     path = RobotPath(t, noisy, None, 0.0195)
-    assert np.array_equal(smooth_robot(path, ResidualConfig()).p_WE, savgol_filter(noisy, 11, 2, axis=0, mode="interp"))
+    box = ResidualConfig(robot_smooth_s=0.04, robot_smooth_weights="box")
+    assert np.array_equal(smooth_robot(path, box).p_WE, savgol_filter(noisy, 11, 2, axis=0, mode="interp"))
     bi = smooth_robot(path, ResidualConfig(robot_smooth_s=0.08, robot_smooth_weights="biweight")).p_WE
     assert np.array_equal(bi, local_quadratic(noisy, 9))
     with pytest.raises(ValueError, match="robot_smooth_weights"):
@@ -108,7 +112,7 @@ def test_biweight_smoothing_does_not_kick_the_launch():
     rng = np.random.default_rng(0)
     draws = [rng.normal(scale=2e-4, size=p.shape) for _ in range(200)]
     kick, scatter = {}, {}
-    for name, cfg in (("box", ResidualConfig()),
+    for name, cfg in (("box", ResidualConfig(robot_smooth_s=0.04, robot_smooth_weights="box")),
                       ("biweight", ResidualConfig(robot_smooth_s=0.08, robot_smooth_weights="biweight"))):
         clean = np.diff(smooth_robot(RobotPath(t, p, None, 0.0195), cfg).p_WE[:, 0]).max() * 240.0
         peaks = [np.diff(smooth_robot(RobotPath(t, p + n, None, 0.0195), cfg).p_WE[:, 0]).max() * 240.0 for n in draws]
