@@ -110,6 +110,14 @@ def _config_json(text: str) -> dict:
     return cfg
 
 
+def _path_settings(args) -> dict:
+    """``ResidualConfig.sphere_drive``, ``robot_smooth_weights`` and ``robot_smooth_s`` from ``--sphere-drive``,
+    ``--robot-smooth-weights`` and ``--robot-smooth`` (absent: the config's default)."""
+    given = {"sphere_drive": args.sphere_drive, "robot_smooth_weights": args.robot_smooth_weights,
+             "robot_smooth_s": args.robot_smooth}
+    return {k: v for k, v in given.items() if v is not None}
+
+
 def _sim_settings(args) -> dict:
     """``ResidualConfig.contact_breaking_m`` and ``contact_erp`` from ``--contact-breaking`` / ``--contact-erp``
     (absent: the config's default; 'off': None, Bullet's default)."""
@@ -426,7 +434,7 @@ def strike(args) -> None:
                                       fit_maxiter=24, max_train_segments=10,
                                       nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
                                       unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check, **_sim_settings(args),
-                                      sphere_drive=args.sphere_drive)
+                                      **_path_settings(args))
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
             if args.true_split:
@@ -549,9 +557,16 @@ def main() -> None:
     st.add_argument("--true-split", action="store_true",
                     help="no loop: the block errors of the declared model and of the true effect value, on the effect's "
                          "frames of every block where it acts (what the data can show)")
-    st.add_argument("--sphere-drive", choices=("lead", "inverse"), default="lead",
+    st.add_argument("--sphere-drive", choices=("lead", "inverse"), default=None,
                     help="how the rollouts drag the sphere along the measured path (ResidualConfig.sphere_drive, "
-                         "docs/residuals.md §6): lead (the default) or inverse (the constraint's update inverted)")
+                         "docs/residuals.md §6): lead or inverse (the constraint's update inverted; the config's default)")
+    st.add_argument("--robot-smooth-weights", choices=("box", "biweight"), default=None,
+                    help="weights of the local quadratic fit that smooths the measured sphere path "
+                         "(ResidualConfig.robot_smooth_weights, docs/residuals.md §7): box (Savitzky-Golay) or biweight "
+                         "(the config's default); main's earlier rollouts: --sphere-drive lead --robot-smooth-weights box "
+                         "--robot-smooth 0.04")
+    st.add_argument("--robot-smooth", type=float, default=None, metavar="S",
+                    help="window of that fit in s (ResidualConfig.robot_smooth_s; default: the config's, 0.08)")
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
     for sp in (r, s, lb, st):
@@ -576,6 +591,8 @@ def main() -> None:
     # refused before any session is made (naming the flag), not by a traceback from the loop's config
     if args.folds < 1:
         ap.error(f"--folds: expected an integer >= 1, got {args.folds}")
+    if getattr(args, "robot_smooth", None) is not None and args.robot_smooth < 0:
+        ap.error(f"--robot-smooth: expected a window >= 0 s, got {args.robot_smooth}")
     if getattr(args, "pose_noise", 0.0) < 0:
         ap.error(f"--pose-noise: expected a noise level >= 0 m, got {args.pose_noise}")
     if getattr(args, "candidates", None):

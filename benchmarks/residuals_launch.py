@@ -6,13 +6,19 @@ loop. Baking-box strike sessions of the synthetic lab (30 s, 30 Hz, the strike b
 model, declared friction 0.15 (the true one unless ``--mu``).
 
     python benchmarks/residuals_launch.py launch --seed 651 [--b 2.0] [--mu 0.15] [--noise] [--drive lead|inverse]
-        [--substep 0.002] [--smooth 0.0]
+        [--substep 0.002] [--smooth S] [--smooth-weights box|biweight]
         per launch block: the observed horizontal travel and peak frame speed against the rollout of the true model
         (noise-free poses and robot path, no smoothing unless --noise / --smooth)
     python benchmarks/residuals_launch.py loss --seed 651 [--b 2.0] [--pose-noise 5e-4] [--no-robot-noise]
-        [--drive lead|inverse] [--smooth S] [--grid 0 1.4 1.7 2.0 2.3 2.6]
+        [--drive lead|inverse] [--smooth 0.04] [--smooth-weights box|biweight] [--grid 0 1.4 1.7 2.0 2.3 2.6]
         the damping's training loss (the loop's blocks, start states and error) at each b of the grid, on the frames
         it is fitted on and split by frame kind (sliding, robot contact, rest, all, the last frame of each launch)
+    python benchmarks/residuals_launch.py path --seeds 681 682 683 [--smooth 0.04] [--smooth-weights box|biweight]
+        no rollout: the robot path the loop smooths, with and without the lab's sensor noise, against the true path —
+        the velocity noise its sample-to-sample increments keep, and per strike the launch a kinematic sphere on it
+        would hand a free 1-D object (pushed whenever the sphere reaches it, sliding with mu g = 1.47 m/s² otherwise)
+The subcommands' defaults are the loop's earlier ones (the lead drive, Savitzky-Golay over 0.04 s); the loop's defaults
+are now the inverse drive on a biweight fit over 0.08 s: --drive inverse --smooth-weights biweight --smooth 0.08.
 """
 
 from __future__ import annotations
@@ -61,8 +67,9 @@ def launch(args) -> None:
     from tests.residuals.synthlab import perturbed_model
 
     ls = _session(args.seed, args.b, args.mu, 5e-4 if args.noise else 0.0, args.noise)
-    cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3, robot_smooth_s=0.04 if args.noise else args.smooth,
-                              sim_substep_s=args.substep)
+    smooth = args.smooth if args.smooth is not None else (0.04 if args.noise else 0.0)
+    cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3, robot_smooth_s=smooth, sim_substep_s=args.substep,
+                              robot_smooth_weights=args.smooth_weights)
     model = perturbed_model(ls)
     model = dataclasses.replace(model, friction=Friction(args.mu, model.friction.object_robot))
     segs, starts, _ = _blocks(ls, model, cfg)
@@ -79,7 +86,8 @@ def launch(args) -> None:
             print(f"  launch block at frame {s.start:4d}: observed travel {np.linalg.norm(P[-1] - P[0]) * 1e3:5.1f} mm, "
                   f"peak frame speed {u.max():.3f} m/s; rollout travel x {travel[-1]:.3f}, peak x {peak[-1]:.3f}")
     print(f"seed {args.seed}, b {args.b} /s, mu {args.mu}, drive {args.drive}, sub-step {args.substep * 1e3:.2f} ms, "
-          f"{'noisy poses and robot path (smoothed 0.04 s)' if args.noise else 'noise-free'}: {len(travel)} launches, "
+          f"{'noisy poses and robot path' if args.noise else 'noise-free'}, robot path smoothed {smooth:.3f} s "
+          f"({args.smooth_weights}): {len(travel)} launches, "
           f"rollout / observed travel median {np.median(travel):.3f} (mean {np.mean(travel):.3f}), peak speed median "
           f"{np.median(peak):.3f}")
 
@@ -94,8 +102,7 @@ def loss(args) -> None:
 
     ls = _session(args.seed, args.b, 0.15, args.pose_noise, not args.no_robot_noise)
     cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3, seed=args.seed, fit_maxiter=24, max_train_segments=10)
-    if args.smooth is not None:
-        cfg = dataclasses.replace(cfg, robot_smooth_s=args.smooth)
+    cfg = dataclasses.replace(cfg, robot_smooth_s=args.smooth, robot_smooth_weights=args.smooth_weights)
     model = perturbed_model(ls)
     segs, starts, _ = _blocks(ls, model, cfg)
     eff = REGISTRY["linear_damping"]
@@ -139,6 +146,47 @@ def loss(args) -> None:
             print(f"  {name:32s} {part:8s} " + " ".join(f"{x:6.2f}" for x in v) + f"   minimum at b = {best}")
 
 
+def _launch_1d(x: np.ndarray, dt: float, i: int, n: int = 20, mu_g: float = 1.47) -> float:
+    """Speed (m/s) of a free 1-D object touching a kinematic sphere at sample i of its path x (m along the strike,
+    step dt), n samples later: pushed to the sphere's position whenever the sphere reaches it, else sliding."""
+    xo, u = x[i], 0.0
+    for k in range(i + 1, min(i + n, len(x))):
+        u = max(u - mu_g * dt, 0.0)
+        if x[k] > xo + u * dt:
+            u, xo = (x[k] - xo) / dt, x[k]
+        else:
+            xo = xo + u * dt
+    return u
+
+
+def path(args) -> None:
+    from service.residuals.loop import smooth_robot
+    from service.residuals.types import ResidualConfig
+
+    cfg = dataclasses.replace(ResidualConfig(), robot_smooth_s=args.smooth, robot_smooth_weights=args.smooth_weights)
+    noise, bias, clean_r, noisy_r = [], [], [], []
+    for seed in args.seeds:
+        true, noisy = (_session(seed, args.b, 0.15, 0.0, n).robot for n in (False, True))
+        dt = float(np.median(np.diff(true.t)))
+        v = np.diff(true.p_WE, axis=0) / dt
+        vc, vn = (np.diff(smooth_robot(r, cfg).p_WE, axis=0) / dt for r in (true, noisy))
+        noise.append(np.sqrt(np.mean(np.sum((vn - vc) ** 2, 1))))
+        bias.append(np.sqrt(np.mean(np.sum((vc - v) ** 2, 1))))
+        s = np.linalg.norm(v[:, :2], axis=1)
+        # strikes: the fastest sample of each approach (the impact follows it)
+        peaks = [i for i in range(30, len(s) - 40) if s[i] > 0.25 and s[i] == s[i - 25:i + 25].max()]
+        for i in peaks:
+            d = v[i, :2] / s[i]
+            ref = _launch_1d(true.p_WE[:, :2] @ d, dt, i)
+            clean_r.append(_launch_1d(smooth_robot(true, cfg).p_WE[:, :2] @ d, dt, i) / ref)
+            noisy_r.append(_launch_1d(smooth_robot(noisy, cfg).p_WE[:, :2] @ d, dt, i) / ref)
+    print(f"seeds {args.seeds}, robot path smoothed {args.smooth:.4f} s ({args.smooth_weights}): velocity of the "
+          f"sample-to-sample increments, rms noise left {np.mean(noise) * 1e3:.1f} mm/s, rms departure of the noise-free "
+          f"smoothed path {np.mean(bias) * 1e3:.1f} mm/s; 1-D launch / the true path's over {len(clean_r)} strikes: "
+          f"noise-free median {np.median(clean_r):.4f} (mean {np.mean(clean_r):.4f}), with noise median "
+          f"{np.median(noisy_r):.4f} (mean {np.mean(noisy_r):.4f}, sd {np.std(noisy_r):.4f})")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -146,19 +194,27 @@ def main() -> None:
     la.add_argument("--noise", action="store_true", help="the benchmark's pose noise and the lab's robot sensor noise")
     la.add_argument("--mu", type=float, default=0.15)
     la.add_argument("--substep", type=float, default=0.002)
-    la.add_argument("--smooth", type=float, default=0.0)
+    la.add_argument("--smooth", type=float, default=None,
+                    help="window of the robot path's smoothing, s (default: 0.04 with --noise, else 0)")
     lo = sub.add_parser("loss")
     lo.add_argument("--pose-noise", type=float, default=5e-4)
     lo.add_argument("--no-robot-noise", action="store_true")
-    lo.add_argument("--smooth", type=float, default=None)
+    lo.add_argument("--smooth", type=float, default=0.04)
     lo.add_argument("--grid", type=float, nargs="+", default=[0.0, 1.4, 1.7, 2.0, 2.3, 2.6])
+    pa = sub.add_parser("path")
+    pa.add_argument("--seeds", type=int, nargs="+", required=True)
+    pa.add_argument("--smooth", type=float, default=0.04)
+    pa.add_argument("--b", type=float, default=2.0, help="hidden linear damping, 1/s (0: none)")
+    pa.add_argument("--smooth-weights", choices=("box", "biweight"), default="box")
     for p in (la, lo):
         p.add_argument("--seed", type=int, required=True)
         p.add_argument("--b", type=float, default=2.0, help="hidden linear damping, 1/s (0: none)")
         p.add_argument("--drive", choices=("lead", "inverse"), default="lead")
+        p.add_argument("--smooth-weights", choices=("box", "biweight"), default="box",
+                       help="weights of the robot path's local quadratic fit (ResidualConfig.robot_smooth_weights)")
     args = ap.parse_args()
     print("command:", " ".join(["python", *sys.argv]))
-    {"launch": launch, "loss": loss}[args.cmd](args)
+    {"launch": launch, "loss": loss, "path": path}[args.cmd](args)
 
 
 if __name__ == "__main__":

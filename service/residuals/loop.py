@@ -111,8 +111,45 @@ class Segment:
     fit: tuple | None = None
 
 
+def local_quadratic(p: np.ndarray, half: int) -> np.ndarray:
+    """(n, d) samples ``p`` (uniform steps) smoothed by a weighted local quadratic fit over ``2 half + 1`` samples,
+    biweight weights (1 − (k / (half + 1))²)² at offset k (vanishing smoothly at the window's edges).
+
+    Exact for any quadratic in time (a constant acceleration is kept), like Savitzky–Golay; unlike its equal
+    weights, the smooth weights leave little noise in the sample-to-sample increments (the velocity a kinematic
+    drive hands a struck object): per unit of sample noise 0.108 at half = 9 against 0.243 for the 11-sample
+    Savitzky–Golay (position 0.375 against 0.455). The first and last ``half`` samples are fitted on the part of
+    their window inside the data (same weights, truncated).
+    """
+    p = np.asarray(p, float)
+    n = len(p)
+    k_all = np.arange(-half, half + 1, dtype=float)
+    w_all = (1.0 - (k_all / (half + 1)) ** 2) ** 2
+    out = np.empty_like(p)
+
+    def row(lo: int, hi: int) -> np.ndarray:
+        """weights of samples lo..hi (offsets from the fitted sample) for the fit's value at offset 0"""
+        k, w = k_all[lo + half:hi + half + 1], w_all[lo + half:hi + half + 1]
+        A = np.stack([np.ones_like(k), k, k * k], 1)
+        return np.linalg.solve(A.T @ (w[:, None] * A), (A * w[:, None]).T)[0]
+
+    K = row(-half, half)
+    for i in range(n):
+        lo, hi = max(-half, -i), min(half, n - 1 - i)
+        if lo == -half and hi == half:
+            continue
+        out[i] = row(lo, hi) @ p[i + lo:i + hi + 1]
+    if n > 2 * half:
+        from numpy.lib.stride_tricks import sliding_window_view
+
+        win = sliding_window_view(p, 2 * half + 1, axis=0)  # (n − 2 half, d, 2 half + 1)
+        out[half:n - half] = win @ K
+    return out
+
+
 def smooth_robot(robot: RobotPath | None, cfg: ResidualConfig) -> RobotPath | None:
-    """The measured sphere path smoothed by a quadratic Savitzky–Golay filter over ``robot_smooth_s``.
+    """The measured sphere path smoothed by a local quadratic fit over ``robot_smooth_s``: Savitzky–Golay
+    (``robot_smooth_weights`` "box") or biweight weights (``local_quadratic``).
 
     The rollouts drag the sphere kinematically along this path, so its velocity at a contact sets the
     object's launch; sensor noise of σ per sample at rate f gives velocity noise ≈ √2 σ f (0.2 mm at 240 Hz:
@@ -131,6 +168,8 @@ def smooth_robot(robot: RobotPath | None, cfg: ResidualConfig) -> RobotPath | No
     w = int(round(cfg.robot_smooth_s / med)) | 1
     if w < 5 or w > len(t):
         return robot
+    if cfg.robot_smooth_weights == "biweight":
+        return dataclasses.replace(robot, p_WE=local_quadratic(robot.p_WE, w // 2))
     from scipy.signal import savgol_filter
 
     p = savgol_filter(np.asarray(robot.p_WE, float), w, 2, axis=0, mode="interp")
