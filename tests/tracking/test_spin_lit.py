@@ -85,7 +85,9 @@ def test_rolling_body_recovered_where_the_chain_lags():
     lit = spin_closure(feats, X, Q, N, lit=LIT, **KW)
     err_chain = np.degrees(np.abs(chain.theta - true))
     err_lit = np.degrees(np.abs(lit.theta - true))
-    assert err_chain[N_FR[1]:].min() > 8.0  # the lit votes hold the chain back (-9.5…-10.1° measured)
+    # the lit votes hold the chain back: 9.5-10.1° after the roll with OpenBLAS's Haswell kernels, 7.1-7.6° with the
+    # ones it picks itself on the same machine (the chain's vote modes move with the last bits)
+    assert err_chain[N_FR[1]:].min() > 6.0
     assert err_lit.max() < 3.5  # what is left is the noise's random walk (-2.2…-2.9° after the roll)
 
 
