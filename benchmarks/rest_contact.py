@@ -3,6 +3,7 @@ threshold"): the cube placed at rest on the table, rolled out for 2 s per contac
 
     python benchmarks/rest_contact.py [--thresholds 0.0005 0.001 0.002 0.005 off] [--margins 0 0.001 0.004]
     python benchmarks/rest_contact.py --real [--thresholds 0.001 off] [--offsets 0 -0.00113] [--friction 0.205]
+    (either with [--persist M]: the simulator's contact_persist_m)
 
 Per case: the drift of the pose over 2 s (CoM horizontal travel, height change, rotation) against its start, the CoM
 height above the table minus the half side (the resting gap; < 0 is penetration), the number of contact points per
@@ -43,7 +44,7 @@ class _Counting:
 
 
 def rest(cb, margin: float, start: str, seconds: float = 2.0, fps: float = 148.0, substep: float = 0.002,
-         friction: float = 0.15):
+         friction: float = 0.15, persist: float | None = None):
     """Rest rollout of the cube; returns a dict of drift and contact figures (m, rad, counts)."""
     from service.residuals.simulate import BulletSimulator
     from service.residuals.types import SimRequest
@@ -66,7 +67,7 @@ def rest(cb, margin: float, start: str, seconds: float = 2.0, fps: float = 148.0
         z0 -= 0.0018
     v0 = {"slide": np.array([0.5, 0.0, 0.0]), "deep": np.array([0.3, 0.0, -0.02])}.get(start, np.zeros(3))
     t = np.arange(int(seconds * fps) + 1) / fps
-    with BulletSimulator(substep, collision_margin=margin, contact_breaking_m=cb) as sim:
+    with BulletSimulator(substep, collision_margin=margin, contact_breaking_m=cb, contact_persist_m=persist) as sim:
         proxy = _Counting(sim._p)
         sim._p = proxy
         X = sim(SimRequest(cube_model(friction=(friction, friction)), make_X(R, np.array([0.0, 0.0, z0])), v0,
@@ -98,14 +99,15 @@ def main(argv=None) -> None:
     ap.add_argument("--real", action="store_true", help="the real tosses' blocks from rest or sliding instead")
     ap.add_argument("--offsets", nargs="+", type=float, default=[0.0, -0.00113])
     ap.add_argument("--friction", type=float, default=0.205)
+    ap.add_argument("--persist", type=float, default=None, help="contact_persist_m of the simulator (default off)")
     args = ap.parse_args(argv)
     if args.real:
-        return real_rests(args.thresholds, args.offsets, {"friction_object_table": args.friction})
+        return real_rests(args.thresholds, args.offsets, {"friction_object_table": args.friction}, persist=args.persist)
     for margin in args.margins:
         for th in args.thresholds:
             cb = None if th == "off" else float(th)
             for start in args.starts:
-                r = rest(cb, margin, start)
+                r = rest(cb, margin, start, persist=args.persist)
                 print(f"margin {margin * 1e3:g} mm, threshold {'0.02 m' if cb is None else f'{cb * 1e3:g} mm'}, start "
                       f"{start:5s}: drift in the 2nd s xy {r['xy_1s'] * 1e3:.3f} mm, rot {np.degrees(r['rot_1s']):.4f} deg,"
                       f" z range {r['z_range_1s'] * 1e3:.3f} mm; xy over 2 s {r['xy_2s'] * 1e3:.3f} mm; gap "
@@ -115,7 +117,7 @@ def main(argv=None) -> None:
 
 
 
-def real_rests(thresholds, offsets, effects: dict, block: int = 22, max_blocks: int = 400) -> None:
+def real_rests(thresholds, offsets, effects: dict, block: int = 22, max_blocks: int = 400, persist=None) -> None:
     """The real ContactNets tosses: blocks of ``block`` frames (0.15 s at 148 Hz) that start on a frame the loop
     classifies as rest or sliding, replayed from the data's start state with ``effects`` per threshold and table
     offset; mean position error (mm) by the data's mode over the block's frames."""
@@ -139,7 +141,7 @@ def real_rests(thresholds, offsets, effects: dict, block: int = 22, max_blocks: 
         cb = None if th == "off" else float(th)
         for off in offsets:
             err = {m: [] for m in MODES}
-            with BulletSimulator(0.002, contact_breaking_m=cb) as sim:
+            with BulletSimulator(0.002, contact_breaking_m=cb, contact_persist_m=persist) as sim:
                 proxy = _Counting(sim._p)
                 sim._p = proxy
                 for traj, mode, k in starts:
