@@ -103,7 +103,7 @@ def _config_json(text: str) -> dict:
     unknown = sorted(set(cfg) - {f.name for f in dataclasses.fields(ResidualConfig)})
     if unknown:
         raise argparse.ArgumentTypeError(f"not ResidualConfig fields: {', '.join(unknown)}")
-    clash = sorted(set(cfg) & {"contact_breaking_m", "contact_erp", "candidates", "folds", "unit_statistic",
+    clash = sorted(set(cfg) & {"contact_breaking_m", "contact_erp", "contact_persist_m", "candidates", "folds", "unit_statistic",
                                "lookalike_check", "max_train_segments", "fit_maxiter"})
     if clash:
         raise argparse.ArgumentTypeError(f"set by the benchmark or its own flags, not by --config: {', '.join(clash)}")
@@ -119,12 +119,14 @@ def _path_settings(args) -> dict:
 
 
 def _sim_settings(args) -> dict:
-    """``ResidualConfig.contact_breaking_m`` and ``contact_erp`` from ``--contact-breaking`` / ``--contact-erp``
+    """``ResidualConfig.contact_breaking_m``, ``contact_erp`` and ``contact_persist_m`` from ``--contact-breaking`` /
+    ``--contact-erp`` / ``--contact-persist``
     (absent: the config's default; 'off': None, Bullet's default)."""
     from service.residuals.types import ResidualConfig
 
     out = {}
-    for flag, field in (("contact_breaking", "contact_breaking_m"), ("contact_erp", "contact_erp")):
+    for flag, field in (("contact_breaking", "contact_breaking_m"), ("contact_erp", "contact_erp"),
+                        ("contact_persist", "contact_persist_m")):
         v = getattr(args, flag, None)
         out[field] = getattr(ResidualConfig, field) if v is None else (None if v == "off" else v)
     return out
@@ -388,7 +390,7 @@ def _true_split(ls, model, name, truth, cfg) -> str:
     masks = [effect_mask(sg, eff) for sg in segs]
     keep = [i for i, m in enumerate(masks) if m.sum() >= 3]
     segs, masks = [segs[i] for i in keep], [masks[i] for i in keep]
-    sim = make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp, cfg.sphere_drive)
+    sim = make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp, cfg.sphere_drive, cfg.contact_persist_m)
     try:
         ev = Evaluator(sim, ls.table_height, object_radius(model))
         theta = tuple(truth) if isinstance(truth, tuple) else (truth,)
@@ -587,6 +589,9 @@ def main() -> None:
         sp.add_argument("--contact-erp", default=None, metavar="F", type=_off_or_float,
                         help="fraction of a contact's penetration the loop's simulator pushes out per sub-step, or 'off' "
                              "for Bullet's default (ResidualConfig.contact_erp, docs/residuals.md §6)")
+        sp.add_argument("--contact-persist", default=None, metavar="M", type=_off_or_float,
+                        help="threshold of the object-table manifold re-made at the first touch in m, or 'off' "
+                             "(ResidualConfig.contact_persist_m, docs/residuals.md §7 'Resting contact ...')")
     args = ap.parse_args()
     # refused before any session is made (naming the flag), not by a traceback from the loop's config
     if args.folds < 1:

@@ -951,7 +951,7 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
         from service.residuals.simulate import make_simulator
 
         own_sim = simulate = make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp,
-                                            cfg.sphere_drive)
+                                            cfg.sphere_drive, cfg.contact_persist_m)
     try:
         rot_scale = cfg.rot_scale_m if cfg.rot_scale_m is not None else object_radius(model)
         ev = Evaluator(simulate, inputs.table_height, rot_scale)

@@ -102,13 +102,15 @@ class BulletSimulator:
     """Callable ``SimRequest -> (T,4,4)`` rollouts; owns one pybullet DIRECT client (call ``close``)."""
 
     def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0, contact_breaking_m: float | None = None,
-                 contact_erp: float | None = None, sphere_drive: str = "lead"):
+                 contact_erp: float | None = None, sphere_drive: str = "lead", contact_persist_m: float | None = None):
         import pybullet
 
         if contact_breaking_m is not None and not contact_breaking_m > 0:
             raise ValueError(f"contact_breaking_m must be > 0 m or None, not {contact_breaking_m!r}")
         if contact_erp is not None and not 0.0 <= contact_erp <= 1.0:
             raise ValueError(f"contact_erp must be in [0, 1] or None, not {contact_erp!r}")
+        if contact_persist_m is not None and not contact_persist_m > 0:
+            raise ValueError(f"contact_persist_m must be > 0 m or None, not {contact_persist_m!r}")
         if sphere_drive not in SPHERE_DRIVES:
             raise ValueError(f"sphere_drive must be one of {SPHERE_DRIVES}, not {sphere_drive!r}")
         self._p = pybullet
@@ -116,6 +118,11 @@ class BulletSimulator:
         self.substep = float(sim_substep_s)
         self.margin = float(collision_margin)
         self.contact_breaking = None if contact_breaking_m is None else float(contact_breaking_m)
+        # the object-table manifold re-made with this threshold at the object's first touch (None: off). Bullet drops a
+        # manifold point once its witness points have moved apart along the surface by more than the threshold, so at
+        # 1 mm a body sliding at v h > 0.5 mm per sub-step holds about one point and sinks (docs/residuals.md §7,
+        # "Resting contact at the contact breaking threshold"); the first touch is still made at contact_breaking_m
+        self.contact_persist = None if contact_persist_m is None else float(contact_persist_m)
         # the fraction of a contact's penetration pushed out per sub-step (None: Bullet's default); pushing out d at
         # erp d / h adds speed to a struck object when its contact starts inside it (``contact_breaking_m``)
         self._contact_kw = {} if contact_erp is None else {"contactERP": float(contact_erp)}
@@ -145,6 +152,18 @@ class BulletSimulator:
             R = quat_to_mat(np.array([orn[3], orn[0], orn[1], orn[2]]))
             tau = -b_ang * (R @ (moments * (R.T @ np.asarray(w))))
             p.applyExternalTorque(body, -1, tau.tolist(), p.WORLD_FRAME, physicsClientId=cid)
+
+    def _remake_manifold(self, body: int, table: int, threshold: float) -> None:
+        """Re-make the object-table contact manifold with ``threshold`` (m); every other pair keeps its own. Bullet
+        fixes a manifold's threshold when the manifold is made, so the pair is filtered off (its manifold freed),
+        then on again while the global is ``threshold``, and the global is put back."""
+        p, cid = self._p, self._cid
+        p.setCollisionFilterPair(body, table, -1, -1, 0, physicsClientId=cid)
+        p.performCollisionDetection(physicsClientId=cid)
+        p.setPhysicsEngineParameter(contactBreakingThreshold=threshold, physicsClientId=cid)
+        p.setCollisionFilterPair(body, table, -1, -1, 1, physicsClientId=cid)
+        p.performCollisionDetection(physicsClientId=cid)
+        p.setPhysicsEngineParameter(contactBreakingThreshold=self.contact_breaking, physicsClientId=cid)
 
     def close(self) -> None:
         if getattr(self, "_cid", None) is not None:
@@ -248,6 +267,7 @@ class BulletSimulator:
             cons = p.createConstraint(sphere, -1, -1, -1, p.JOINT_FIXED, [0, 0, 0], [0, 0, 0],
                                       ee_path[0].tolist(), physicsClientId=cid)
 
+        persist = self.contact_persist if self.contact_breaking is not None else None
         b_lin = float(eff.get("linear_damping", 0.0)) / s_time
         b_ang = float(eff.get("angular_damping", 0.0)) / s_time
         mass = float(model.mass)
@@ -262,6 +282,9 @@ class BulletSimulator:
                 if b_lin or b_ang:  # viscous: F = −m b v at the CoM, τ = −b I_W ω
                     self._damp(body, mass, moments, b_lin, b_ang)
                 p.stepSimulation(physicsClientId=cid)
+                if persist is not None and p.getContactPoints(bodyA=body, bodyB=table, physicsClientId=cid):
+                    self._remake_manifold(body, table, persist)
+                    persist = None
             ps, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
             pos[k] = ps
             quat[k] = (orn[3], orn[0], orn[1], orn[2])
@@ -274,11 +297,12 @@ class BulletSimulator:
 
 
 def make_simulator(sim_substep_s: float = 0.002, contact_breaking_m: float | None = None,
-                   contact_erp: float | None = None, sphere_drive: str = "lead") -> BulletSimulator:
+                   contact_erp: float | None = None, sphere_drive: str = "lead",
+                   contact_persist_m: float | None = None) -> BulletSimulator:
     """The built-in simulator used when the caller injects none (``ResidualConfig.sim_substep_s``,
-    ``contact_breaking_m``, ``contact_erp`` and ``sphere_drive``)."""
+    ``contact_breaking_m``, ``contact_erp``, ``sphere_drive`` and ``contact_persist_m``)."""
     return BulletSimulator(sim_substep_s, contact_breaking_m=contact_breaking_m, contact_erp=contact_erp,
-                           sphere_drive=sphere_drive)
+                           sphere_drive=sphere_drive, contact_persist_m=contact_persist_m)
 
 
 def service_sim_simulator(sim_cfg=None):

@@ -152,6 +152,10 @@ class ResidualConfig:
     # with contacts made at the touch (contact_breaking_m) a strike starts inside the object by up to v h, and the
     # push-out d erp / h added up to 7 % to an e = 0 launch with Bullet's default, 4 % with 0.05 (docs/residuals.md §6)
     contact_erp: float | None = None
+    # threshold of the object-table contact manifold re-made at the object's first touch, m (None: off, the default):
+    # at contact_breaking_m = 1 mm a sliding body's points are dropped after 1 mm of travel along the table and it
+    # holds about one point (docs/residuals.md §7, "Resting contact at the contact breaking threshold")
+    contact_persist_m: float | None = None
     contact_tol_m: float = 0.004  # gap below which the table counts as touching (mode classifier)
     rest_speed: float = 0.03  # m/s, below this (and touching) the object is at rest
     impact_dv: float = 0.3  # m/s, a velocity jump above this in one step while touching = impact
@@ -230,6 +234,8 @@ class ResidualConfig:
                 raise ValueError(f"ResidualConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if self.contact_breaking_m is not None and not self.contact_breaking_m > 0:
             raise ValueError(f"ResidualConfig.contact_breaking_m must be > 0 m or None, not {self.contact_breaking_m!r}")
+        if self.contact_persist_m is not None and not self.contact_persist_m > 0:
+            raise ValueError(f"ResidualConfig.contact_persist_m must be > 0 m or None, not {self.contact_persist_m!r}")
         if self.contact_erp is not None and not 0.0 <= self.contact_erp <= 1.0:
             raise ValueError(f"ResidualConfig.contact_erp must be in [0, 1] or None, not {self.contact_erp!r}")
         if not (isinstance(self.folds, int) and self.folds >= 1):
