@@ -600,6 +600,17 @@ def main() -> None:
         ap.error(f"--robot-smooth: expected a window >= 0 s, got {args.robot_smooth}")
     if getattr(args, "pose_noise", 0.0) < 0:
         ap.error(f"--pose-noise: expected a noise level >= 0 m, got {args.pose_noise}")
+    # the simulator flags' values checked by the config's own validation (range, NaN), each naming its flag
+    from service.residuals.types import ResidualConfig
+
+    for flag, field in (("contact_breaking", "contact_breaking_m"), ("contact_erp", "contact_erp"),
+                        ("contact_persist", "contact_persist_m"), ("toss_contact_breaking", "contact_breaking_m")):
+        v = getattr(args, flag, None)
+        if v is not None and v != "off":
+            try:
+                ResidualConfig(**{field: v})
+            except ValueError as e:
+                ap.error(f"--{flag.replace('_', '-')}: {e}")
     if getattr(args, "candidates", None):
         from service.residuals.effects import REGISTRY
 
