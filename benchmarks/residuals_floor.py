@@ -175,24 +175,13 @@ def main() -> None:
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     ap.add_argument("--config", default="{}", help="JSON overrides of the benchmark's ResidualConfig")
     args = ap.parse_args()
-    import json
+    from _overrides import stage_overrides
 
     fixed = {"max_train_segments": 12, "fit_maxiter": 24, "folds": 2}
-    try:
-        over = json.loads(args.config)
-    except json.JSONDecodeError as e:
-        ap.error(f"--config: not JSON ({e})")
-    if not isinstance(over, dict):
-        ap.error("--config: expected a JSON object of ResidualConfig fields")
-    unknown = sorted(set(over) - {f.name for f in dataclasses.fields(ResidualConfig)})
-    if unknown:
-        ap.error(f"--config: not ResidualConfig fields: {', '.join(unknown)}")
+    over = stage_overrides(ap, args.config, "--config", "residuals")  # JSON of valid ResidualConfig fields
     if set(over) & set(fixed):
         ap.error(f"--config: set by this script, not by --config: {', '.join(sorted(set(over) & set(fixed)))}")
-    try:
-        cfg = dataclasses.replace(ResidualConfig.fast(), **fixed, **over)
-    except (TypeError, ValueError) as e:
-        ap.error(f"--config: {e}")
+    cfg = dataclasses.replace(ResidualConfig.fast(), **fixed, **over)
     print("command:", " ".join(["python", *sys.argv]))
     for case in args.cases:
         comp = __import__("service.residuals.effects", fromlist=["REGISTRY"]).REGISTRY[case].component
