@@ -44,6 +44,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _overrides import off_or_float
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"  # shared/ sits beside the repository
 REAL = Path(SHARED, "data/real/contactnets_cube_toss/data.npz")
@@ -78,16 +79,6 @@ def load_tosses(path: Path, max_tosses: int | None, seed: int):
         idx = np.sort(np.random.default_rng(seed).choice(len(trajs), max_tosses, replace=False))
         trajs = [trajs[i] for i in idx]
     return tuple(trajs)
-
-
-def _off_or_float(text: str) -> float | str:
-    """argparse type of the simulator flags: a number, or 'off' (Bullet's own default)."""
-    if str(text).lower() == "off":
-        return "off"
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number or 'off', not {text!r}") from None
 
 
 def _config_json(text: str) -> dict:
@@ -535,7 +526,7 @@ def main() -> None:
     s.add_argument("--no-pushing", action="store_true")
     s.add_argument("--config", default={}, type=_config_json,
                    help='JSON of ResidualConfig fields for the toss cases, e.g. \'{"init_fit_frames_flight": 41}\'')
-    s.add_argument("--toss-contact-breaking", default=None, metavar="M", type=_off_or_float,
+    s.add_argument("--toss-contact-breaking", default=None, metavar="M", type=off_or_float,
                    help="contact breaking threshold of the toss generator (tests/residuals/lab.py) in m, or 'off' for "
                         "Bullet's 0.02 m (the generator before docs/residuals.md §7 'The toss generator's bounce'); "
                         "default: the generator's default, 1 mm")
@@ -583,13 +574,13 @@ def main() -> None:
         sp.add_argument("--lookalike-check", action="store_true",
                         help="rule 9 (docs/residuals.md §4): a passing candidate must beat each look-alike effect "
                              "fitted in the same round (table friction against linear damping) on held-out blocks")
-        sp.add_argument("--contact-breaking", default=None, metavar="M", type=_off_or_float,
+        sp.add_argument("--contact-breaking", default=None, metavar="M", type=off_or_float,
                         help="contact breaking threshold of the loop's simulator in m, or 'off' for Bullet's 0.02 m "
                              "(ResidualConfig.contact_breaking_m, docs/residuals.md §6); default: the config's default")
-        sp.add_argument("--contact-erp", default=None, metavar="F", type=_off_or_float,
+        sp.add_argument("--contact-erp", default=None, metavar="F", type=off_or_float,
                         help="fraction of a contact's penetration the loop's simulator pushes out per sub-step, or 'off' "
                              "for Bullet's default (ResidualConfig.contact_erp, docs/residuals.md §6)")
-        sp.add_argument("--contact-persist", default=None, metavar="M", type=_off_or_float,
+        sp.add_argument("--contact-persist", default=None, metavar="M", type=off_or_float,
                         help="threshold of the object-table manifold re-made at the first touch in m, or 'off' "
                              "(ResidualConfig.contact_persist_m, docs/residuals.md §7 'Resting contact ...')")
     args = ap.parse_args()

@@ -24,6 +24,10 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _overrides import nonnegative_float, off_or_positive, positive_float  # noqa: E402
+
+STARTS = ("touch", "in", "above", "tilt", "rock", "slide", "deep")  # how a rest begins (module docstring)
+
 
 class _Counting:
     """Proxy of the pybullet module that records the object's contact points with the table after every step."""
@@ -93,13 +97,13 @@ def rest(cb, margin: float, start: str, seconds: float = 2.0, fps: float = 148.0
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--thresholds", nargs="+", default=["0.0005", "0.001", "0.002", "0.005", "off"])
-    ap.add_argument("--margins", nargs="+", type=float, default=[0.0, 0.001, 0.004])
-    ap.add_argument("--starts", nargs="+", default=["touch", "in", "above", "tilt", "rock", "slide", "deep"])
+    ap.add_argument("--thresholds", type=off_or_positive, nargs="+", default=["0.0005", "0.001", "0.002", "0.005", "off"])
+    ap.add_argument("--margins", nargs="+", type=nonnegative_float, default=[0.0, 0.001, 0.004])
+    ap.add_argument("--starts", nargs="+", default=list(STARTS), choices=STARTS)
     ap.add_argument("--real", action="store_true", help="the real tosses' blocks from rest or sliding instead")
     ap.add_argument("--offsets", nargs="+", type=float, default=[0.0, -0.00113])
-    ap.add_argument("--friction", type=float, default=0.205)
-    ap.add_argument("--persist", type=float, default=None, help="contact_persist_m of the simulator (default off)")
+    ap.add_argument("--friction", type=nonnegative_float, default=0.205)
+    ap.add_argument("--persist", type=positive_float, default=None, help="contact_persist_m of the simulator (default off)")
     args = ap.parse_args(argv)
     if args.real:
         return real_rests(args.thresholds, args.offsets, {"friction_object_table": args.friction}, persist=args.persist)

@@ -33,11 +33,14 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from _overrides import off_or_positive, positive_float, positive_int, unit_float  # noqa: E402
+
 FPS_SUB = 592.0  # the generator's sub-step rate: 148 Hz frames, ceil((1/148) / 0.002) = 4 sub-steps each
 
 
-def _cb(text: str):
-    return None if text == "off" else float(text)
+def _cb(value):
+    """``--contact-breaking`` value -> ``BulletSimulator(contact_breaking_m=...)`` (None: Bullet's default)."""
+    return None if value == "off" else float(value)
 
 
 def _name(cb) -> str:
@@ -135,14 +138,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     d = sub.add_parser("drops")
-    d.add_argument("--speeds", type=float, nargs="+", default=[1.0, 1.5, 2.0])
-    d.add_argument("--e", type=float, nargs="+", default=[0.3, 0.5, 0.7])
-    d.add_argument("--phases", type=int, default=12)
-    d.add_argument("--contact-breaking", nargs="+", default=["off", "0.005", "0.002", "0.001"])
+    d.add_argument("--speeds", type=positive_float, nargs="+", default=[1.0, 1.5, 2.0])
+    d.add_argument("--e", type=unit_float, nargs="+", default=[0.3, 0.5, 0.7])
+    d.add_argument("--phases", type=positive_int, default=12)
+    d.add_argument("--contact-breaking", type=off_or_positive, nargs="+", default=["off", "0.005", "0.002", "0.001"])
     s = sub.add_parser("tosses")
     s.add_argument("--seeds", type=int, nargs="+", default=[63, 64, 65, 66])
-    s.add_argument("--e-toss", type=float, default=0.5)
-    s.add_argument("--contact-breaking", nargs="+", default=["off", "0.002", "0.001"])
+    s.add_argument("--e-toss", type=unit_float, default=0.5)
+    s.add_argument("--contact-breaking", type=off_or_positive, nargs="+", default=["off", "0.002", "0.001"])
     args = ap.parse_args()
     print("command:", " ".join(["python", *sys.argv]))
     {"drops": drops, "tosses": tosses}[args.cmd](args)
