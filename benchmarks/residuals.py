@@ -552,14 +552,14 @@ def main() -> None:
                          "frames of every block where it acts (what the data can show)")
     st.add_argument("--sphere-drive", choices=("lead", "inverse"), default=None,
                     help="how the rollouts drag the sphere along the measured path (ResidualConfig.sphere_drive, "
-                         "docs/residuals.md §6): lead or inverse (the constraint's update inverted; the config's default)")
+                         "docs/residuals.md §6): lead (the config's default) or inverse (the constraint's update inverted)")
     st.add_argument("--robot-smooth-weights", choices=("box", "biweight"), default=None,
                     help="weights of the local quadratic fit that smooths the measured sphere path "
-                         "(ResidualConfig.robot_smooth_weights, docs/residuals.md §7): box (Savitzky-Golay) or biweight "
-                         "(the config's default); main's earlier rollouts: --sphere-drive lead --robot-smooth-weights box "
-                         "--robot-smooth 0.04")
+                         "(ResidualConfig.robot_smooth_weights, docs/residuals.md §7): box (Savitzky-Golay, the config's default) or "
+                         "biweight; the measured alternative: --sphere-drive inverse --robot-smooth-weights biweight "
+                         "--robot-smooth 0.08")
     st.add_argument("--robot-smooth", type=float, default=None, metavar="S",
-                    help="window of that fit in s (ResidualConfig.robot_smooth_s; default: the config's, 0.08)")
+                    help="window of that fit in s (ResidualConfig.robot_smooth_s; default: the config's, 0.04)")
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
     for sp in (r, s, lb, st):

@@ -14,8 +14,9 @@ value ("after", the floor), from start states and against poses mixed from estim
     compared to  obs    the noisy tracked poses (what the loop compares)
                  clean  the noise-free poses
 
-``true`` against ``clean`` is the simulator/time-step mismatch (the rollout is the data's own simulator from the
-same state); ``true`` against ``obs`` the pose noise of the compared frames; the rows between split the
+``true`` against ``clean`` is the simulator/time-step mismatch (the rollout is the loop's simulator at Bullet's
+contact breaking threshold, 0.02 m, from the same state; the tosses are generated at the generator's 1 mm, so on
+impact frames this row also holds that difference); ``true`` against ``obs`` the pose noise of the compared frames; the rows between split the
 start-state part.
 
     python benchmarks/residuals_floor.py --seeds 39 40 [--cases angular_damping restitution ...]

@@ -17,8 +17,10 @@ model, declared friction 0.15 (the true one unless ``--mu``).
         no rollout: the robot path the loop smooths, with and without the lab's sensor noise, against the true path —
         the velocity noise its sample-to-sample increments keep, and per strike the launch a kinematic sphere on it
         would hand a free 1-D object (pushed whenever the sphere reaches it, sliding with mu g = 1.47 m/s² otherwise)
-The subcommands' defaults are the loop's earlier ones (the lead drive, Savitzky-Golay over 0.04 s); the loop's defaults
-are now the inverse drive on a biweight fit over 0.08 s: --drive inverse --smooth-weights biweight --smooth 0.08.
+The subcommands' defaults are the loop's (the lead drive, Savitzky-Golay over 0.04 s); the measured alternative, off
+by default (docs/residuals.md §7, "Both replay settings together"): --drive inverse --smooth-weights biweight
+--smooth 0.08. The rollouts here use Bullet's contact breaking threshold (0.02 m), not the loop's 1 mm: the figures
+of "Linear damping fitted low on strikes" were made so.
 """
 
 from __future__ import annotations

@@ -55,8 +55,8 @@ def _corners(X: np.ndarray) -> np.ndarray:
     return np.einsum("tij,kj->tki", X[:, :3, :3], c) + X[:, None, :3, 3]
 
 
-def _drop_rebound(sim, e: float, v: float, phase: float) -> float:
-    """Rebound e' of a flat drop from rest meeting the table at v (m/s); ``phase`` in [0, 1) shifts the start height
+def _drop_rebound(sim, e: float, v: float, phase: float) -> tuple[float, float, float]:
+    """(apex rebound e', rebound speed / impact speed, impact speed m/s) of a flat drop from rest meeting the table at v (m/s); ``phase`` in [0, 1) shifts the start height
     by that fraction of one sub-step's travel at impact."""
     from service.residuals.types import SimRequest
     from service.transforms import make_X

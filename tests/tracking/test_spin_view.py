@@ -19,8 +19,7 @@ from tests.tracking.test_spin import _cylinder_model
 CYCLE = np.concatenate([np.linspace(1.3, 13.0, 10), np.full(5, 13.0), np.linspace(11.7, 0.0, 10)])  # tilt (°)
 PROFILE = np.concatenate([np.zeros(10), CYCLE, np.zeros(15), CYCLE, np.zeros(15)])
 SECOND = 50  # first frame of the second tilt
-TWIST_ERR = 3.0
-OFF = 8.0  # spin (°) given to the frames of a constructed fast stretch  # the tracker's constant spin error (°) after frame 0: the correction to find
+TWIST_ERR = 3.0  # the tracker's constant spin error (°) after frame 0: the correction to find
 
 
 def _scene():
@@ -82,6 +81,8 @@ def test_off_is_the_chain():
     a = spin_closure(feats, X, Q, N, **KW)
     b = spin_closure(feats, X, Q, N, n_view=0, **KW)
     assert np.array_equal(a.theta, b.theta) and np.array_equal(a.votes, b.votes)
+    on = spin_closure(feats, X, Q, N, n_view=4, **KW)  # the switch is what changes the chain on this scene
+    assert not np.array_equal(a.theta, on.theta)
 
 
 def test_nearest_views_order_and_ties():
