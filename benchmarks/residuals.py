@@ -587,8 +587,8 @@ def main() -> None:
     # refused before any session is made (naming the flag), not by a traceback from the loop's config
     if args.folds < 1:
         ap.error(f"--folds: expected an integer >= 1, got {args.folds}")
-    if getattr(args, "robot_smooth", None) is not None and args.robot_smooth < 0:
-        ap.error(f"--robot-smooth: expected a window >= 0 s, got {args.robot_smooth}")
+    if getattr(args, "robot_smooth", None) is not None and not 0 <= args.robot_smooth < float("inf"):
+        ap.error(f"--robot-smooth: expected a finite window >= 0 s, got {args.robot_smooth}")
     if getattr(args, "pose_noise", 0.0) < 0:
         ap.error(f"--pose-noise: expected a noise level >= 0 m, got {args.pose_noise}")
     # the simulator flags' values checked by the config's own validation (range, NaN), each naming its flag

@@ -227,15 +227,21 @@ class ResidualConfig:
                 raise ValueError(f"ResidualConfig.{name} must be > 0, not {getattr(self, name)!r}")
         if not isinstance(self.flight_start_model, bool):
             raise ValueError(f"ResidualConfig.flight_start_model must be a bool, not {self.flight_start_model!r}")
-        if not (isinstance(self.init_fit_frames_flight, int) and self.init_fit_frames_flight >= 0):
+        if not (isinstance(self.init_fit_frames_flight, int) and not isinstance(self.init_fit_frames_flight, bool)
+                and self.init_fit_frames_flight >= 0):
             raise ValueError(f"ResidualConfig.init_fit_frames_flight must be an integer >= 0, not {self.init_fit_frames_flight!r}")
         for name in ("launch_rest_speed", "launch_lead", "robot_smooth_s"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"ResidualConfig.{name} must be >= 0, not {getattr(self, name)!r}")
-        if self.contact_breaking_m is not None and not self.contact_breaking_m > 0:
-            raise ValueError(f"ResidualConfig.contact_breaking_m must be > 0 m or None, not {self.contact_breaking_m!r}")
-        if self.contact_persist_m is not None and not self.contact_persist_m > 0:
-            raise ValueError(f"ResidualConfig.contact_persist_m must be > 0 m or None, not {self.contact_persist_m!r}")
+        if not np.isfinite(self.robot_smooth_s):
+            raise ValueError(f"ResidualConfig.robot_smooth_s must be a finite window in s, not {self.robot_smooth_s!r}")
+        for name in ("contact_breaking_m", "contact_persist_m"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < np.inf):
+                raise ValueError(f"ResidualConfig.{name} must be a number > 0 m or None, not {v!r}")
+        if self.contact_persist_m is not None and self.contact_breaking_m is None:
+            raise ValueError("ResidualConfig.contact_persist_m needs contact_breaking_m (the manifold is re-made at "
+                             "Bullet's threshold only when the loop uses its own): set both or neither")
         if self.contact_erp is not None and not 0.0 <= self.contact_erp <= 1.0:
             raise ValueError(f"ResidualConfig.contact_erp must be in [0, 1] or None, not {self.contact_erp!r}")
         if not (isinstance(self.folds, int) and self.folds >= 1):

@@ -413,6 +413,8 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not self.spin_max_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
+        if not (isinstance(self.spin_view_anchors, int) and not isinstance(self.spin_view_anchors, bool)):
+            raise ValueError(f"TrackingConfig.spin_view_anchors must be an int >= 0, not {self.spin_view_anchors!r}")
         for name in ("sdf_band_px", "sdf_band_frames", "sdf_contradict_margin"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
