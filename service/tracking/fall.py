@@ -37,8 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.tracking.spin import LitTest, SpinResult, fast_frames, find_axis, runs, solve_spin_graph, spin_closure, \
-    spin_links, spin_mixed, widen
+from service.tracking.spin import LitTest, SpinResult, fast_frames, runs, solve_spin_graph, spin_closure, spin_links, \
+    spin_mixed, widen
 from service.transforms import mat_to_quat
 
 
@@ -125,7 +125,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
     none = np.zeros(n, bool)
     if not base.is_revolution or base.rejected:
         return base, none
-    axis = find_axis(Q, N, tau, sep, profile)  # the same axis spin_mixed used (deterministic)
+    axis = parts["axis"]  # the axis spin_mixed fitted (the multi-start profile fit is the costly part)
     _, _, a, c = axis
     kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match_once,
               sep=sep, profile=profile, max_deg=max_deg, axis=axis, lit=lit, n_view=n_view)

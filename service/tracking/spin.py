@@ -611,9 +611,11 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
     """Spin correction like ``spin_closure`` (same axis, cap, result): the chain, with the fast frames where it pooled
     fewer than ``fast_votes`` votes (``fast_frames``; widened) taking the increments of the pose graph
     (``spin_links``, ``solve_spin_graph``; comment above). ``parts``: a dict that receives the intermediate results
-    others reuse (key "theta_g": the graph's solution (N,), when it was computed)."""
+    others reuse (keys "axis": ``find_axis``'s result; "theta_g": the graph's solution (N,), when it was computed)."""
     n = len(X_WO)
     axis = find_axis(Q, N, tau, sep, profile)
+    if parts is not None:
+        parts["axis"] = axis
     memo: dict = {}
 
     def match_once(da, db):  # the chain runs twice and the graph asks for many of the same pairs
