@@ -444,14 +444,20 @@ class TrackingConfig:
         for name in ("resettle_flush_deg", "resettle_flush_square_deg"):
             if not 0.0 <= getattr(self, name) < 90.0:
                 raise ValueError(f"TrackingConfig.{name} must be in [0, 90), not {getattr(self, name)!r}")
-        if not (self.resettle_flush_rest_tol >= 0 and 0.0 < self.resettle_flush_rest_frac <= 1.0
-                and self.resettle_flush_rest_shift > 0 and self.resettle_flush_rest_ransac > 0
-                and isinstance(self.resettle_flush_rest_matches, int)
-                and self.resettle_flush_rest_matches >= 1):
-            raise ValueError(f"TrackingConfig.resettle_flush_rest_tol must be >= 0, resettle_flush_rest_frac in "
-                             f"(0, 1], resettle_flush_rest_shift > 0 and resettle_flush_rest_matches an int >= 1, not "
-                             f"{self.resettle_flush_rest_tol!r}, {self.resettle_flush_rest_frac!r}, "
-                             f"{self.resettle_flush_rest_shift!r}, {self.resettle_flush_rest_matches!r}")
+        rest_ok = {  # the frames at rest before the settled frame: each setting's own range
+            "resettle_flush_rest_tol": self.resettle_flush_rest_tol >= 0,
+            "resettle_flush_rest_frac": 0.0 < self.resettle_flush_rest_frac <= 1.0,
+            "resettle_flush_rest_shift": self.resettle_flush_rest_shift > 0,
+            "resettle_flush_rest_ransac": self.resettle_flush_rest_ransac > 0,
+            "resettle_flush_rest_matches": isinstance(self.resettle_flush_rest_matches, int)
+            and not isinstance(self.resettle_flush_rest_matches, bool) and self.resettle_flush_rest_matches >= 1,
+        }
+        bad = [name for name, ok in rest_ok.items() if not ok]
+        if bad:
+            raise ValueError(f"TrackingConfig.{bad[0]} out of range ({getattr(self, bad[0])!r}): "
+                             "resettle_flush_rest_tol must be >= 0, resettle_flush_rest_frac in (0, 1], "
+                             "resettle_flush_rest_shift and resettle_flush_rest_ransac > 0, resettle_flush_rest_matches "
+                             "an int >= 1")
         if not (isinstance(self.resettle_refine_frames, int) and self.resettle_refine_frames >= 0):
             raise ValueError(f"TrackingConfig.resettle_refine_frames must be an int >= 0, not {self.resettle_refine_frames!r}")
         if not (isinstance(self.sdf_support_open_dilate, int) and self.sdf_support_open_dilate >= 0):
