@@ -14,10 +14,11 @@ value ("after", the floor), from start states and against poses mixed from estim
     compared to  obs    the noisy tracked poses (what the loop compares)
                  clean  the noise-free poses
 
-``true`` against ``clean`` is the simulator/time-step mismatch (the rollout is the loop's simulator at Bullet's
-contact breaking threshold, 0.02 m, from the same state; the tosses are generated at the generator's 1 mm, so on
-impact frames this row also holds that difference); ``true`` against ``obs`` the pose noise of the compared frames; the rows between split the
-start-state part.
+``true`` against ``clean`` is the simulator/time-step mismatch (the rollout is the loop's simulator with the config's
+settings, ``simulate.simulator_for``, from the same state; the tosses are generated at the generator's contact breaking
+threshold, 1 mm); ``true`` against ``obs`` the pose noise of the compared frames; the rows between split the
+start-state part. The figures of docs/residuals.md §7 "The floor the right model keeps" were made with the rollouts at
+Bullet's 0.02 m, before the loop's default became 1 mm: ``--config '{"contact_breaking_m": null}'`` replays so.
 
     python benchmarks/residuals_floor.py --seeds 39 40 [--cases angular_damping restitution ...]
         [--config '{"init_fit_frames_flight": 41}']   (ResidualConfig fields: the loop's start state to diagnose)
@@ -102,7 +103,7 @@ def diagnose(case: str, seed: int, cfg, start_state=None) -> dict:
     from service.residuals.effects import REGISTRY, apply_effects
     from service.residuals.loop import Evaluator, effect_mask, make_segments, reduce_blocks
     from service.residuals.modes import classify, object_radius
-    from service.residuals.simulate import make_simulator
+    from service.residuals.simulate import simulator_for
     from service.residuals.types import ResidualInputs
     from service.transforms import rotation_angle
     from tests.residuals.lab import cube_model
@@ -132,7 +133,7 @@ def diagnose(case: str, seed: int, cfg, start_state=None) -> dict:
     m0 = np.array([s.mode[0] for s in segs])
     groups = {"flight": m0 == MODES.index("free_flight"), "contact": (m0 != MODES.index("free_flight")) & (m0 != MODES.index("rest")),
               "rest": m0 == MODES.index("rest")}
-    sim = make_simulator(cfg.sim_substep_s)
+    sim = simulator_for(cfg)
     out = {"blocks": len(segs), "groups": {g: int(m.sum()) for g, m in groups.items()}}
     try:
         ev = Evaluator(sim, 0.0, object_radius(model))

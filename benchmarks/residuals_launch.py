@@ -6,11 +6,12 @@ loop. Baking-box strike sessions of the synthetic lab (30 s, 30 Hz, the strike b
 model, declared friction 0.15 (the true one unless ``--mu``).
 
     python benchmarks/residuals_launch.py launch --seed 651 [--b 2.0] [--mu 0.15] [--noise] [--drive lead|inverse]
-        [--substep 0.002] [--smooth S] [--smooth-weights box|biweight]
+        [--contact-breaking M|off] [--substep 0.002] [--smooth S] [--smooth-weights box|biweight]
         per launch block: the observed horizontal travel and peak frame speed against the rollout of the true model
         (noise-free poses and robot path, no smoothing unless --noise / --smooth)
     python benchmarks/residuals_launch.py loss --seed 651 [--b 2.0] [--pose-noise 5e-4] [--no-robot-noise]
-        [--drive lead|inverse] [--smooth 0.04] [--smooth-weights box|biweight] [--grid 0 1.4 1.7 2.0 2.3 2.6]
+        [--drive lead|inverse] [--contact-breaking M|off] [--smooth 0.04] [--smooth-weights box|biweight]
+        [--grid 0 1.4 1.7 2.0 2.3 2.6]
         the damping's training loss (the loop's blocks, start states and error) at each b of the grid, on the frames
         it is fitted on and split by frame kind (sliding, robot contact, rest, all, the last frame of each launch)
     python benchmarks/residuals_launch.py path --seeds 681 682 683 [--smooth 0.04] [--smooth-weights box|biweight]
@@ -19,8 +20,9 @@ model, declared friction 0.15 (the true one unless ``--mu``).
         would hand a free 1-D object (pushed whenever the sphere reaches it, sliding with mu g = 1.47 m/s² otherwise)
 The subcommands' defaults are the loop's (the lead drive, Savitzky-Golay over 0.04 s); the measured alternative, off
 by default (docs/residuals.md §7, "Both replay settings together"): --drive inverse --smooth-weights biweight
---smooth 0.08. The rollouts here use Bullet's contact breaking threshold (0.02 m), not the loop's 1 mm: the figures
-of "Linear damping fitted low on strikes" were made so.
+--smooth 0.08. The rollouts are the loop's simulator (``simulate.simulator_for``) with its contact breaking threshold
+(1 mm by default) unless ``--contact-breaking M|off``; the figures of "Linear damping fitted low on strikes" were made
+before 1 mm became the default, with Bullet's 0.02 m: ``--contact-breaking off`` replays so.
 """
 
 from __future__ import annotations
@@ -63,7 +65,7 @@ def _blocks(ls, model, cfg):
 
 def launch(args) -> None:
     from service.residuals.effects import apply_effects
-    from service.residuals.simulate import BulletSimulator
+    from service.residuals.simulate import simulator_for
     from service.residuals.types import ResidualConfig, SimRequest
     from service.session.types import Friction
     from tests.residuals.synthlab import perturbed_model
@@ -71,13 +73,14 @@ def launch(args) -> None:
     ls = _session(args.seed, args.b, args.mu, 5e-4 if args.noise else 0.0, args.noise)
     smooth = args.smooth if args.smooth is not None else (0.04 if args.noise else 0.0)
     cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3, robot_smooth_s=smooth, sim_substep_s=args.substep,
-                              robot_smooth_weights=args.smooth_weights)
+                              robot_smooth_weights=args.smooth_weights, sphere_drive=args.drive,
+                              **_breaking(args))
     model = perturbed_model(ls)
     model = dataclasses.replace(model, friction=Friction(args.mu, model.friction.object_robot))
     segs, starts, _ = _blocks(ls, model, cfg)
     m1, e1 = apply_effects(model, {"linear_damping": (args.b,)})
     travel, peak = [], []
-    with BulletSimulator(args.substep, sphere_drive=args.drive) as sim:
+    with simulator_for(cfg) as sim:
         for s in (s for s in segs if s.start in starts):
             P = s.X_obs[:, :2, 3]
             X = sim(SimRequest(m1, s.X0, s.v0, s.w0, s.t, ls.table_height, s.robot, e1))
@@ -98,19 +101,20 @@ def loss(args) -> None:
     from service.residuals.effects import REGISTRY, apply_effects
     from service.residuals.loop import Evaluator, effect_mask
     from service.residuals.modes import object_radius
-    from service.residuals.simulate import make_simulator
+    from service.residuals.simulate import simulator_for
     from service.residuals.types import MODES, ResidualConfig
     from tests.residuals.synthlab import perturbed_model
 
     ls = _session(args.seed, args.b, 0.15, args.pose_noise, not args.no_robot_noise)
     cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3, seed=args.seed, fit_maxiter=24, max_train_segments=10)
-    cfg = dataclasses.replace(cfg, robot_smooth_s=args.smooth, robot_smooth_weights=args.smooth_weights)
+    cfg = dataclasses.replace(cfg, robot_smooth_s=args.smooth, robot_smooth_weights=args.smooth_weights,
+                              sphere_drive=args.drive, **_breaking(args))
     model = perturbed_model(ls)
     segs, starts, _ = _blocks(ls, model, cfg)
     eff = REGISTRY["linear_damping"]
     acts = [(s, effect_mask(s, eff)) for s in segs]
     acts = [(s, m) for s, m in acts if m.sum() >= 3]
-    sim = make_simulator(cfg.sim_substep_s, sphere_drive=args.drive)
+    sim = simulator_for(cfg)
     try:
         ev = Evaluator(sim, ls.table_height, object_radius(model))
         res = {}
@@ -146,6 +150,13 @@ def loss(args) -> None:
         for part, v in rows.items():
             best = args.grid[int(np.nanargmin(v))] if np.isfinite(v).any() else float("nan")
             print(f"  {name:32s} {part:8s} " + " ".join(f"{x:6.2f}" for x in v) + f"   minimum at b = {best}")
+
+
+def _breaking(args) -> dict:
+    """``ResidualConfig.contact_breaking_m`` from ``--contact-breaking`` ({} = the loop's default)."""
+    if args.contact_breaking is None:
+        return {}
+    return {"contact_breaking_m": None if args.contact_breaking == "off" else args.contact_breaking}
 
 
 def _launch_1d(x: np.ndarray, dt: float, i: int, n: int = 20, mu_g: float = 1.47) -> float:
@@ -190,28 +201,33 @@ def path(args) -> None:
 
 
 def main() -> None:
+    from _overrides import nonnegative_float, off_or_positive, positive_float
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     la = sub.add_parser("launch")
     la.add_argument("--noise", action="store_true", help="the benchmark's pose noise and the lab's robot sensor noise")
-    la.add_argument("--mu", type=float, default=0.15)
-    la.add_argument("--substep", type=float, default=0.002)
-    la.add_argument("--smooth", type=float, default=None,
+    la.add_argument("--mu", type=positive_float, default=0.15)
+    la.add_argument("--substep", type=positive_float, default=0.002)
+    la.add_argument("--smooth", type=nonnegative_float, default=None,
                     help="window of the robot path's smoothing, s (default: 0.04 with --noise, else 0)")
     lo = sub.add_parser("loss")
-    lo.add_argument("--pose-noise", type=float, default=5e-4)
+    lo.add_argument("--pose-noise", type=nonnegative_float, default=5e-4)
     lo.add_argument("--no-robot-noise", action="store_true")
-    lo.add_argument("--smooth", type=float, default=0.04)
-    lo.add_argument("--grid", type=float, nargs="+", default=[0.0, 1.4, 1.7, 2.0, 2.3, 2.6])
+    lo.add_argument("--smooth", type=nonnegative_float, default=0.04)
+    lo.add_argument("--grid", type=nonnegative_float, nargs="+", default=[0.0, 1.4, 1.7, 2.0, 2.3, 2.6])
     pa = sub.add_parser("path")
     pa.add_argument("--seeds", type=int, nargs="+", required=True)
-    pa.add_argument("--smooth", type=float, default=0.04)
-    pa.add_argument("--b", type=float, default=2.0, help="hidden linear damping, 1/s (0: none)")
+    pa.add_argument("--smooth", type=nonnegative_float, default=0.04)
+    pa.add_argument("--b", type=nonnegative_float, default=2.0, help="hidden linear damping, 1/s (0: none)")
     pa.add_argument("--smooth-weights", choices=("box", "biweight"), default="box")
     for p in (la, lo):
         p.add_argument("--seed", type=int, required=True)
-        p.add_argument("--b", type=float, default=2.0, help="hidden linear damping, 1/s (0: none)")
+        p.add_argument("--b", type=nonnegative_float, default=2.0, help="hidden linear damping, 1/s (0: none)")
         p.add_argument("--drive", choices=("lead", "inverse"), default="lead")
+        p.add_argument("--contact-breaking", type=off_or_positive, default=None, metavar="M",
+                       help="the rollouts' contact breaking threshold, m, or 'off' for Bullet's 0.02 m "
+                            "(default: the loop's, ResidualConfig.contact_breaking_m)")
         p.add_argument("--smooth-weights", choices=("box", "biweight"), default="box",
                        help="weights of the robot path's local quadratic fit (ResidualConfig.robot_smooth_weights)")
     args = ap.parse_args()

@@ -17,6 +17,9 @@ linear_damping, table_tilt, clock_offset, com_offset).
 
 ``--frames`` lengthens the recording (same resolution and frame rate as the preset): a 5 s session holds
 one or two strokes, too few held-out blocks in robot contact for any test.
+
+``--diagnose`` replays with the loop's default simulator (``simulate.simulator_for``: the contact breaking threshold of
+1 mm since it became the default; the diagnosis figures of docs/residuals.md §7 made before then used Bullet's 0.02 m).
 """
 
 from __future__ import annotations
@@ -92,7 +95,7 @@ def diagnose(bundle_dir: Path, session_dir: Path, segment_s: float = 0.3, loops:
     from service.model import ObjectModel
     from service.residuals.loop import Evaluator, make_segments
     from service.residuals.modes import classify, object_radius
-    from service.residuals.simulate import make_simulator
+    from service.residuals.simulate import simulator_for
     from service.residuals.types import ObservedTrajectory, ResidualConfig, ResidualInputs, RobotPath
     from service.session import load_session, sha256_of
     from service.tracking.types import TrackingOutputs
@@ -169,7 +172,7 @@ def diagnose(bundle_dir: Path, session_dir: Path, segment_s: float = 0.3, loops:
           f"(1e-4 kg m^2); CoM offset {np.linalg.norm(L.com_O - T.com_O) * 1e3:.0f} mm")
     robot = RobotPath(np.asarray(sess.robot_t, float), np.asarray(sess.robot_p_WE, float), None, float(sess.ee_radius))
     cfg = dataclasses.replace(ResidualConfig(), segment_s=segment_s)
-    sim = make_simulator()
+    sim = simulator_for(cfg)
     try:
         if not evaluate:
             raise _Skip

@@ -948,10 +948,9 @@ def run(inputs: ResidualInputs, cfg: ResidualConfig, *, progress=None) -> Residu
     own_sim = None
     simulate = inputs.simulate
     if simulate is None:
-        from service.residuals.simulate import make_simulator
+        from service.residuals.simulate import simulator_for
 
-        own_sim = simulate = make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp,
-                                            cfg.sphere_drive, cfg.contact_persist_m)
+        own_sim = simulate = simulator_for(cfg)
     try:
         rot_scale = cfg.rot_scale_m if cfg.rot_scale_m is not None else object_radius(model)
         ev = Evaluator(simulate, inputs.table_height, rot_scale)

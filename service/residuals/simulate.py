@@ -305,6 +305,14 @@ def make_simulator(sim_substep_s: float = 0.002, contact_breaking_m: float | Non
                            sphere_drive=sphere_drive, contact_persist_m=contact_persist_m)
 
 
+def simulator_for(cfg) -> BulletSimulator:
+    """The loop's built-in simulator for the settings ``cfg`` (a ``ResidualConfig``): its sub-step, contact breaking
+    threshold, contact erp, sphere drive and contact persistence. ``run`` uses it when the caller injects no simulator;
+    diagnosis scripts replay with it so that their rollouts are the loop's."""
+    return make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp, cfg.sphere_drive,
+                          cfg.contact_persist_m)
+
+
 def service_sim_simulator(sim_cfg=None):
     """``SimRequest -> X_WO`` through ``service.sim.rollout`` (one fresh Bullet world per call).
 
