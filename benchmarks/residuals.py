@@ -95,9 +95,13 @@ def _config_json(text: str) -> dict:
     if unknown:
         raise argparse.ArgumentTypeError(f"not ResidualConfig fields: {', '.join(unknown)}")
     clash = sorted(set(cfg) & {"contact_breaking_m", "contact_erp", "contact_persist_m", "candidates", "folds", "unit_statistic",
-                               "lookalike_check", "max_train_segments", "fit_maxiter"})
+                               "lookalike_check", "max_train_segments", "fit_maxiter", "seed"})
     if clash:
         raise argparse.ArgumentTypeError(f"set by the benchmark or its own flags, not by --config: {', '.join(clash)}")
+    try:  # the config's own validation, so that a bad value is refused before any toss is made
+        ResidualConfig(**cfg)
+    except (TypeError, ValueError) as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
     return cfg
 
 
@@ -371,7 +375,7 @@ def _true_split(ls, model, name, truth, cfg) -> str:
     from service.residuals.effects import REGISTRY, apply_effects
     from service.residuals.loop import Evaluator, effect_mask, make_segments, reduce_blocks, smooth_robot
     from service.residuals.modes import classify, object_radius
-    from service.residuals.simulate import make_simulator
+    from service.residuals.simulate import simulator_for
     from service.residuals.types import ResidualInputs
 
     robot = smooth_robot(ls.robot, cfg)
@@ -381,7 +385,7 @@ def _true_split(ls, model, name, truth, cfg) -> str:
     masks = [effect_mask(sg, eff) for sg in segs]
     keep = [i for i, m in enumerate(masks) if m.sum() >= 3]
     segs, masks = [segs[i] for i in keep], [masks[i] for i in keep]
-    sim = make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp, cfg.sphere_drive, cfg.contact_persist_m)
+    sim = simulator_for(cfg)
     try:
         ev = Evaluator(sim, ls.table_height, object_radius(model))
         theta = tuple(truth) if isinstance(truth, tuple) else (truth,)

@@ -215,6 +215,7 @@ class ResidualConfig:
     lookalike_check: bool = False
 
     def __post_init__(self) -> None:
+        self._check_numbers()
         if self.sphere_drive not in SPHERE_DRIVES:
             raise ValueError(f"ResidualConfig.sphere_drive must be one of {SPHERE_DRIVES}, not {self.sphere_drive!r}")
         if self.robot_smooth_weights not in ROBOT_SMOOTH_WEIGHTS:
@@ -251,6 +252,34 @@ class ResidualConfig:
         if not self.launch_rest_speed < self.launch_speed:
             raise ValueError(f"ResidualConfig.launch_rest_speed ({self.launch_rest_speed}) must be below "
                              f"launch_speed ({self.launch_speed}): a launch starts at rest")
+
+    def _check_numbers(self) -> None:
+        """The held-out test's, the blocks' and the mode classifier's numbers: a value out of range would fail later
+        (no blocks, a rule that cannot pass) or silently (a fraction above 1); refused here, naming the field."""
+        def bad(name, what):
+            raise ValueError(f"ResidualConfig.{name} must be {what}, not {getattr(self, name)!r}")
+
+        def is_int(v):
+            return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+        for name in ("segment_s", "rot_scale_m"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < np.inf):
+                bad(name, "a number > 0 or None")
+        for name, lo in (("min_segment_frames", 2), ("max_train_segments", 1), ("max_heldout_segments", 1),
+                         ("n_bootstrap", 1), ("max_effects", 0), ("fit_maxiter", 1), ("init_fit_frames", 1),
+                         ("nuisance_maxiter", 0), ("max_nuisance_segments", 1), ("seed", 0)):
+            if not (is_int(getattr(self, name)) and getattr(self, name) >= lo):
+                bad(name, f"an integer >= {lo}")
+        for name in ("heldout_fraction", "alpha"):
+            if not 0 < getattr(self, name) < 1:
+                bad(name, "in (0, 1)")
+        for name in ("sim_substep_s", "rest_speed", "impact_dv", "sliding_speed", "max_base_error_rel"):
+            if not 0 < getattr(self, name) < np.inf:
+                bad(name, "a finite number > 0")
+        for name in ("min_rel_improvement", "tie_tol_rel", "contact_tol_m"):
+            if not 0 <= getattr(self, name) < np.inf:
+                bad(name, "a finite number >= 0")
 
     @classmethod
     def fast(cls) -> "ResidualConfig":

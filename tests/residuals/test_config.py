@@ -16,6 +16,17 @@ def test_presets_are_valid():
     ({"launch_rest_speed": 0.2}, "launch_rest_speed"),  # above the launch speed: no launch could start at rest
     ({"robot_smooth_s": -0.01}, "robot_smooth_s"),
     ({"max_base_error_rel_learned": float("nan")}, "max_base_error_rel_learned"),
+    ({"segment_s": 0.0}, "segment_s"),  # no block would hold a frame
+    ({"rot_scale_m": -0.05}, "rot_scale_m"),
+    ({"min_segment_frames": 1}, "min_segment_frames"),
+    ({"fit_maxiter": 2.5}, "fit_maxiter"),
+    ({"max_train_segments": 0}, "max_train_segments"),
+    ({"seed": -1}, "seed"),
+    ({"heldout_fraction": 1.0}, "heldout_fraction"),  # nothing left to fit on
+    ({"alpha": 0.0}, "alpha"),  # no test could pass
+    ({"sim_substep_s": float("nan")}, "sim_substep_s"),
+    ({"rest_speed": 0.0}, "rest_speed"),
+    ({"tie_tol_rel": -0.1}, "tie_tol_rel"),
 ])
 def test_bad_settings_are_refused(change, word):
     with pytest.raises(ValueError, match=word):
