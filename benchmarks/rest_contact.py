@@ -29,31 +29,13 @@ from _overrides import nonnegative_float, off_or_positive, positive_float  # noq
 STARTS = ("touch", "in", "above", "tilt", "rock", "slide", "deep")  # how a rest begins (module docstring)
 
 
-class _Counting:
-    """Proxy of the pybullet module that records the object's contact points with the table after every step."""
-
-    def __init__(self, p):
-        self._p = p
-        self.counts: list[int] = []
-        self.depth: list[float] = []
-
-    def __getattr__(self, name):
-        return getattr(self._p, name)
-
-    def stepSimulation(self, physicsClientId=0):
-        self._p.stepSimulation(physicsClientId=physicsClientId)
-        cps = self._p.getContactPoints(bodyA=1, bodyB=0, physicsClientId=physicsClientId)
-        self.counts.append(len(cps))
-        self.depth.append(min((c[8] for c in cps), default=np.nan))
-
-
 def rest(cb, margin: float, start: str, seconds: float = 2.0, fps: float = 148.0, substep: float = 0.002,
          friction: float = 0.15, persist: float | None = None):
     """Rest rollout of the cube; returns a dict of drift and contact figures (m, rad, counts)."""
     from service.residuals.simulate import BulletSimulator
     from service.residuals.types import SimRequest
     from service.transforms import make_X, so3_exp
-    from tests.residuals.lab import SIDE, cube_model
+    from tests.residuals.lab import SIDE, TableContacts, cube_model
 
     R = np.eye(3)
     z0 = SIDE / 2
@@ -72,8 +54,7 @@ def rest(cb, margin: float, start: str, seconds: float = 2.0, fps: float = 148.0
     v0 = {"slide": np.array([0.5, 0.0, 0.0]), "deep": np.array([0.3, 0.0, -0.02])}.get(start, np.zeros(3))
     t = np.arange(int(seconds * fps) + 1) / fps
     with BulletSimulator(substep, collision_margin=margin, contact_breaking_m=cb, contact_persist_m=persist) as sim:
-        proxy = _Counting(sim._p)
-        sim._p = proxy
+        proxy = TableContacts.attach(sim)
         X = sim(SimRequest(cube_model(friction=(friction, friction)), make_X(R, np.array([0.0, 0.0, z0])), v0,
                            np.zeros(3), t, 0.0, None, {}))
     n = np.asarray(proxy.counts)
@@ -130,6 +111,7 @@ def real_rests(thresholds, offsets, effects: dict, block: int = 22, max_blocks: 
     from service.residuals.types import MODES
     from service.residuals.simulate import BulletSimulator
     from service.residuals.types import ResidualConfig, SimRequest
+    from tests.residuals.lab import TableContacts
 
     cfg = ResidualConfig()
     model = real_cube()
@@ -146,8 +128,7 @@ def real_rests(thresholds, offsets, effects: dict, block: int = 22, max_blocks: 
         for off in offsets:
             err = {m: [] for m in MODES}
             with BulletSimulator(0.002, contact_breaking_m=cb, contact_persist_m=persist) as sim:
-                proxy = _Counting(sim._p)
-                sim._p = proxy
+                proxy = TableContacts.attach(sim)
                 for traj, mode, k in starts:
                     sl = slice(k, k + block)
                     X = sim(SimRequest(model, traj.X_WO[k], traj.v_WO_W[k], traj.w_WO_O[k], traj.t[sl], 0.0, None,

@@ -26,6 +26,32 @@ MASS = 0.37
 TOSS_CONTACT_BREAKING_M: float | None = 0.001
 
 
+class TableContacts:
+    """Proxy of the pybullet module a ``BulletSimulator`` steps with: after every sub-step it records the object's
+    (body 1) contact points with the table (body 0), their number (``counts``) and the deepest one's signed distance
+    (``depth``, m, negative inside; NaN without contact). ``TableContacts.attach(sim)`` installs it on ``sim``."""
+
+    def __init__(self, p):
+        self._p = p
+        self.counts: list[int] = []
+        self.depth: list[float] = []
+
+    @classmethod
+    def attach(cls, sim: BulletSimulator) -> "TableContacts":
+        proxy = cls(sim._p)
+        sim._p = proxy
+        return proxy
+
+    def __getattr__(self, name):
+        return getattr(self._p, name)
+
+    def stepSimulation(self, physicsClientId=0):
+        self._p.stepSimulation(physicsClientId=physicsClientId)
+        cps = self._p.getContactPoints(bodyA=1, bodyB=0, physicsClientId=physicsClientId)
+        self.counts.append(len(cps))
+        self.depth.append(min((c[8] for c in cps), default=np.nan))
+
+
 def cube_model(effects=None, friction=(0.15, 0.15)) -> ObjectModel:
     m = Mesh.from_trimesh(trimesh.creation.box((SIDE,) * 3))
     inertia = np.eye(3) * MASS * SIDE**2 / 6

@@ -10,24 +10,9 @@ import numpy as np
 from service.residuals.simulate import BulletSimulator
 from service.residuals.types import ResidualConfig, SimRequest
 from service.transforms import make_X, so3_exp
-from tests.residuals.lab import SIDE, cube_model
+from tests.residuals.lab import SIDE, TableContacts, cube_model
 
 FPS = 148.0
-
-
-class _Counting:
-    """pybullet proxy that records the object's (body 1) contact points with the table (body 0) after each step."""
-
-    def __init__(self, p):
-        self._p = p
-        self.counts: list[int] = []
-
-    def __getattr__(self, name):
-        return getattr(self._p, name)
-
-    def stepSimulation(self, physicsClientId=0):
-        self._p.stepSimulation(physicsClientId=physicsClientId)
-        self.counts.append(len(self._p.getContactPoints(bodyA=1, bodyB=0, physicsClientId=physicsClientId)))
 
 
 def _rest(contact_breaking_m, margin: float = 0.0, tilt: float = 0.0, seconds: float = 2.0):
@@ -37,8 +22,7 @@ def _rest(contact_breaking_m, margin: float = 0.0, tilt: float = 0.0, seconds: f
     z0 = SIDE / 2 + 0.5 * SIDE * np.sin(tilt)
     t = np.arange(int(seconds * FPS) + 1) / FPS
     with BulletSimulator(0.002, collision_margin=margin, contact_breaking_m=contact_breaking_m) as sim:
-        proxy = _Counting(sim._p)
-        sim._p = proxy
+        proxy = TableContacts.attach(sim)
         X = sim(SimRequest(cube_model(), make_X(R, np.array([0.0, 0.0, z0])), np.zeros(3), np.zeros(3), t, 0.0, None,
                            {}))
     return X, np.asarray(proxy.counts)
@@ -86,8 +70,7 @@ def test_sliding_body_in_the_table_is_pushed_out_slower_at_the_default_threshold
     depth, points = {}, {}
     for cb in (ResidualConfig().contact_breaking_m, None):
         with BulletSimulator(0.002, contact_breaking_m=cb) as sim:
-            proxy = _Counting(sim._p)
-            sim._p = proxy
+            proxy = TableContacts.attach(sim)
             X = sim(SimRequest(cube_model(friction=(0.2, 0.2)), make_X(np.eye(3), np.array([0.0, 0.0, SIDE / 2 - 0.0018])),
                                np.array([0.3, 0.0, -0.02]), np.zeros(3), t, 0.0, None, {}))
         depth[cb] = float(SIDE / 2 - X[1:, 2, 3].mean())
@@ -100,8 +83,7 @@ def test_sliding_body_in_the_table_is_pushed_out_slower_at_the_default_threshold
 def _deep_slide(persist):
     t = np.arange(23) / FPS
     with BulletSimulator(0.002, contact_breaking_m=ResidualConfig().contact_breaking_m, contact_persist_m=persist) as sim:
-        proxy = _Counting(sim._p)
-        sim._p = proxy
+        proxy = TableContacts.attach(sim)
         X = sim(SimRequest(cube_model(friction=(0.2, 0.2)), make_X(np.eye(3), np.array([0.0, 0.0, SIDE / 2 - 0.0018])),
                            np.array([0.3, 0.0, -0.02]), np.zeros(3), t, 0.0, None, {}))
     return X, float(np.mean(proxy.counts))
@@ -133,11 +115,15 @@ def test_contact_persist_keeps_the_first_bounce():
     assert abs(out[1] - out[0]) < 1e-6
 
 
-def test_contact_persist_off_without_a_threshold_and_validated():
+def test_contact_persist_validated_and_off_by_default():
+    """A threshold for the re-made manifold must be > 0, and it needs a contact breaking threshold to re-make from
+    (without one it would silently do nothing)."""
     import pytest
 
     with pytest.raises(ValueError):
         BulletSimulator(0.002, contact_breaking_m=0.001, contact_persist_m=0.0)
     with pytest.raises(ValueError):
         ResidualConfig(contact_persist_m=-0.01)
+    with pytest.raises(ValueError, match="contact_persist_m"):
+        ResidualConfig(contact_breaking_m=None, contact_persist_m=0.02)
     assert ResidualConfig().contact_persist_m is None  # off by default
