@@ -415,6 +415,9 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
         if not (isinstance(self.spin_view_anchors, int) and not isinstance(self.spin_view_anchors, bool)):
             raise ValueError(f"TrackingConfig.spin_view_anchors must be an int >= 0, not {self.spin_view_anchors!r}")
+        for name, hi in (("spin_lit_frac", 1.0), ("spin_lit_keep", 1.0), ("spin_lit_lie_deg", 90.0)):  # shares, an angle
+            if not getattr(self, name) <= hi:
+                raise ValueError(f"TrackingConfig.{name} must be <= {hi:g}, not {getattr(self, name)!r}")
         for name in ("sdf_band_px", "sdf_band_frames", "sdf_contradict_margin"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")

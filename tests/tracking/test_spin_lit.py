@@ -103,3 +103,11 @@ def test_sliding_body_keeps_every_vote():
 def test_bad_settings_refused(name):
     with pytest.raises(ValueError):
         TrackingConfig(**{name: -0.1})
+
+
+@pytest.mark.parametrize("name,value", [("spin_lit_frac", 1.5), ("spin_lit_keep", 1.2), ("spin_lit_lie_deg", 120.0)])
+def test_out_of_range_refused(name, value):
+    # a share above 1 would cut every vote (frac) or keep none (keep); an axis cannot be more than 90° off the horizontal
+    with pytest.raises(ValueError, match=name):
+        TrackingConfig(**{name: value})
+    TrackingConfig(**{name: 1.0 if name != "spin_lit_lie_deg" else 90.0})
