@@ -415,6 +415,10 @@ def strike(args) -> None:
     from service.synth.types import HiddenEffects, SynthSpec
     from tests.residuals.synthlab import lab_session, perturbed_model
 
+    if args.lab_strike_contact == "bullet":  # the lab before: every sphere-object contact point solved as Bullet makes it
+        from service.synth import sim as lab_sim
+
+        lab_sim.STRIKE_CONTACT_PROCESSING_M = None
     n_ok = n = 0
     for case in args.cases:
         hidden, name, key, truth, cands = STRIKE_CASES[case]
@@ -564,6 +568,10 @@ def main() -> None:
                          "--robot-smooth 0.08")
     st.add_argument("--robot-smooth", type=float, default=None, metavar="S",
                     help="window of that fit in s (ResidualConfig.robot_smooth_s; default: the config's, 0.04)")
+    st.add_argument("--lab-strike-contact", choices=("touch", "bullet"), default="touch",
+                    help="the lab's sphere-object contact in its strike sessions: solved from the touch on (the lab's "
+                         "setting, service.synth.sim.STRIKE_CONTACT_PROCESSING_M) or every point as Bullet makes it "
+                         "('bullet': the lab before, which lost a third of its bounces; docs/residuals.md §7)")
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
     for sp in (r, s, lb, st):

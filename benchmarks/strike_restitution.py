@@ -3,7 +3,10 @@ for diagnosis only, never part of the service.
 
     python benchmarks/strike_restitution.py phases [--speeds 0.35 0.45 0.6] [--phases 12]
     python benchmarks/strike_restitution.py blocks --seeds 666 667 [--pose-noise 0] [--contact-breaking off 0.001]
-        [--contact-erp 0.05]
+        [--contact-erp 0.05] [--lab-strike-contact touch|bullet]
+    python benchmarks/strike_restitution.py lab [--speeds 0.4 0.55 0.7] [--phases 12] [--restitutions 0.1 0.3 0.5]
+        [--sphere-contact bullet touch] [--breaking off 0.005 0.002 0.001] [--mu 0] [--height-frac F]
+    python benchmarks/strike_restitution.py lab-rest
 
 ``phases``: a 10 kg sphere strikes a resting 0.3 kg box (9.5 x 6.5 x 12.5 cm) through its CoM on a frictionless table;
 the box's launch speed with e = 0.3 over the one with e = 0 (the physics: 1.3 for a heavy striker) over contact
@@ -12,6 +15,20 @@ phases (start gaps uniform over 5 mm, so the touch falls anywhere within a sub-s
 1 mm, and with 1 mm and a contact erp of 0.05 (the e = 0 launch over v is printed too: the push-out of a contact that
 starts inside the object), and a world with the synthetic lab's settings (240 Hz steps, Bullet's default restitution threshold 0.2 m/s and
 contact breaking 0.02 m, a free sphere moving at the strike speed).
+
+``lab``: the same strike in the synthetic lab's own world (``tests/synth/strike_lab.py``: ``service.synth.sim``'s engine
+settings, table, object, sphere, impedance law and strike command; 240 Hz): the launch / approach speed with e = 0 and
+the launch with e over the one with e = 0 per contact phase, with the sphere-object contact solved from the touch on
+(``touch``: ``sim.STRIKE_CONTACT_PROCESSING_M``, the lab's setting) or as Bullet makes it (``bullet``: every contact
+point solved, the lab before), each with Bullet's contact breaking threshold for the whole world as given
+(``--breaking``: a factor of each shape's bounding radius; ``off`` = Bullet's 0.02, the lab's). ``--height-frac`` strikes at that fraction of the box's height (the lab: 0.3) instead
+of through the CoM.
+
+``lab-rest``: the lab's baking box (μ 0.15) at rest for 2 s after the lab's settling, after a release tilted 5 mrad
+and after a release 0.3 rad onto an edge (it rocks onto its face), then launched at 0.5 m/s (deceleration against
+μ g), with lab-wide settings varied: Bullet's contact breaking threshold (a factor of each shape's bounding radius,
+0.02 by default) and the hull margin. The lab's strike setting acts on the sphere-object pair only and leaves these
+rows as Bullet's default gives them.
 
 ``blocks``: a synthetic-lab strike session with a hidden restitution 0.3 (the settings of ``benchmarks/residuals.py
 strike``); on the loop's blocks where restitution acts, the block error (position + rho * angle on the effect's frames)
@@ -110,6 +127,113 @@ def phases(args) -> None:
                   + " ".join(f"{x:.2f}" for x in q) + f"; launch(e=0)/v {l0.min():.3f}-{l0.max():.3f}", flush=True)
 
 
+def lab(args) -> None:
+    from service.synth import sim
+    from tests.synth.strike_lab import lab_strike
+
+    phases = (np.arange(args.phases) + 0.5) / args.phases
+    height = None if args.height_frac is None else args.height_frac * 0.125
+    m_ratio = sim.STRIKE_EE_MASS / (sim.STRIKE_EE_MASS + 0.3)
+    saved = sim.STRIKE_CONTACT_PROCESSING_M
+    try:
+        for setting, brk in [(s_, b_) for s_ in args.sphere_contact for b_ in args.breaking]:
+            sim.STRIKE_CONTACT_PROCESSING_M = None if setting == "bullet" else saved
+            cb = None if brk == "off" else float(brk)
+            for v in args.speeds:
+                r0 = np.array([lab_strike(v, 0.0, ph, mu=args.mu, height=height, breaking=cb) for ph in phases])
+                q0 = r0[:, 1] / r0[:, 0]
+                line = (f"sphere contact {setting}, breaking {brk}, command {v:.2f} m/s (approach {r0[:, 0].mean():.3f} m/s): e=0 launch/approach "
+                        f"{q0.min():.3f}-{q0.max():.3f} (heavy striker through the CoM: {m_ratio:.3f})")
+                for e in args.restitutions:
+                    re = np.array([lab_strike(v, e, ph, mu=args.mu, height=height, breaking=cb) for ph in phases])
+                    q = re[:, 1] / r0[:, 1]
+                    line += (f"; e={e:g}: launch/launch(e=0) mean {q.mean():.3f} min {q.min():.3f} max {q.max():.3f}, bounce lost "
+                             f"(< 1 + e/2) in {int((q < 1 + e / 2).sum())}/{len(q)}, partly (< 1 + 0.9 e) in "
+                             f"{int(((q >= 1 + e / 2) & (q < 1 + 0.9 * e)).sum())}; launch/approach "
+                             f"{(re[:, 1] / re[:, 0]).min():.3f}-{(re[:, 1] / re[:, 0]).max():.3f}")
+                print(line, flush=True)
+    finally:
+        sim.STRIKE_CONTACT_PROCESSING_M = saved
+
+
+def _lab_rest(breaking: float | None, margin: float, tilt: float) -> tuple:
+    """(creep mm, turn deg, CoM height - exact rest height mm, mean object-table points, their changes) over the
+    second of 2 s at rest, and the deceleration (m/s^2) of a slide launched at 0.5 m/s, for the lab's baking box."""
+    import tempfile
+
+    import pybullet as p
+
+    from service.synth import sim
+    from service.synth.objects import make_object
+    from service.transforms import make_X, mat_to_quat, so3_exp
+
+    h = 1.0 / 240.0
+    obj = make_object("baking_box")
+    cid = p.connect(p.DIRECT)
+    tmp = tempfile.TemporaryDirectory(prefix="vysics-rest-")
+    try:
+        sim.configure_world(cid, h, np.array([0.0, 0.0, -sim.GRAVITY]))
+        if breaking is not None:
+            p.setPhysicsEngineParameter(contactBreakingThreshold=breaking, physicsClientId=cid)
+        tcol = p.createCollisionShape(p.GEOM_BOX, halfExtents=sim.TABLE_HALF, physicsClientId=cid)
+        table = p.createMultiBody(0, tcol, -1, [0, 0, -margin - sim.TABLE_HALF[2]], physicsClientId=cid)
+        p.changeDynamics(table, -1, lateralFriction=0.15, restitution=1.0, rollingFriction=0.0005, physicsClientId=cid)
+        zmin = float(np.asarray(obj.mesh.vertices)[:, 2].min())
+        body, _, _, _ = sim.add_object(cid, obj, make_X(np.eye(3), np.array([0, 0, -zmin + 0.0002])), np.zeros(3), 0.3, tmp.name)
+        if margin != sim.HULL_MARGIN:
+            p.changeDynamics(body, -1, collisionMargin=margin, physicsClientId=cid)
+        if tilt:
+            ps, q0 = p.getBasePositionAndOrientation(body, physicsClientId=cid)
+            R0 = np.array(p.getMatrixFromQuaternion(q0)).reshape(3, 3)
+            q = mat_to_quat(so3_exp(np.array([tilt, 0.0, 0.0])) @ R0)
+            p.resetBasePositionAndOrientation(body, [ps[0], ps[1], ps[2] + 0.0325 * abs(np.sin(tilt)) + 0.0005],
+                                              [q[1], q[2], q[3], q[0]], physicsClientId=cid)
+        else:  # the lab's settling
+            p.changeDynamics(body, -1, linearDamping=0.9, angularDamping=0.9, physicsClientId=cid)
+            for _ in range(int(0.8 / h)):
+                p.stepSimulation(physicsClientId=cid)
+            p.changeDynamics(body, -1, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
+            p.resetBaseVelocity(body, [0, 0, 0], [0, 0, 0], physicsClientId=cid)
+            for _ in range(int(0.2 / h)):
+                p.stepSimulation(physicsClientId=cid)
+        P, nc = [], []
+        for _ in range(int(2.0 / h)):
+            p.stepSimulation(physicsClientId=cid)
+            P.append(p.getBasePositionAndOrientation(body, physicsClientId=cid))
+            nc.append(len(p.getContactPoints(body, table, physicsClientId=cid)))
+        pos, qs, half = np.array([x[0] for x in P]), np.array([x[1] for x in P]), len(P) // 2
+        creep = 1e3 * float(np.linalg.norm(pos[-1, :2] - pos[half, :2]))
+        turn = float(np.degrees(2 * np.arccos(np.clip(abs(np.sum(qs[-1] * qs[half])), 0.0, 1.0))))
+        p.resetBaseVelocity(body, [0.5, 0, 0], [0, 0, 0], physicsClientId=cid)
+        V = []
+        for _ in range(int(0.4 / h)):
+            p.stepSimulation(physicsClientId=cid)
+            V.append(p.getBaseVelocity(body, physicsClientId=cid)[0][0])
+        V, t = np.array(V), np.arange(len(V)) * h
+        m = (V > 0.05) & (t > 0.02)
+        return (creep, turn, 1e3 * (pos[-1, 2] + zmin), float(np.mean(nc[half:])), int((np.diff(nc[half:]) != 0).sum()),
+                float(-np.polyfit(t[m], V[m], 1)[0]))
+    finally:
+        p.disconnect(physicsClientId=cid)
+        tmp.cleanup()
+
+
+def lab_rest(args) -> None:
+    from service.synth import sim
+
+    for name, cb, margin in (("Bullet's default (0.02), margin 1 mm (the lab)", None, sim.HULL_MARGIN),
+                             ("breaking 0.005, margin 1 mm", 0.005, sim.HULL_MARGIN),
+                             ("breaking 0.002, margin 1 mm", 0.002, sim.HULL_MARGIN),
+                             ("breaking 0.001, margin 1 mm", 0.001, sim.HULL_MARGIN),
+                             ("breaking 0.001, margin 0.1 mm", 0.001, 1e-4),
+                             ("breaking 0.001, margin 0", 0.001, 0.0)):
+        for tilt, start in ((0.0, "settled"), (0.005, "released tilted 5 mrad"), (0.3, "released 0.3 rad on an edge")):
+            c, tu, z, n, ch, a = _lab_rest(cb, margin, tilt)
+            print(f"{name}, {start}: second s at rest: creep {c:.3f} mm, turn {tu:.3f} deg, CoM {z:+.2f} mm from its "
+                  f"rest height, object-table points {n:.2f} ({ch} changes); slide from 0.5 m/s: {a:.3f} m/s^2 "
+                  f"(mu g {0.15 * sim.GRAVITY:.3f})", flush=True)
+
+
 def blocks(args) -> None:
     from service.residuals.effects import REGISTRY
     from service.residuals.loop import Evaluator, effect_mask, make_segments, reduce_blocks, smooth_robot
@@ -120,6 +244,10 @@ def blocks(args) -> None:
     from tests.residuals.synthlab import lab_session, perturbed_model
 
     grid = np.array([0.0, 0.1, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5])
+    if args.lab_strike_contact == "bullet":  # the lab before (docs/residuals.md §7, "The synthetic lab's strikes")
+        from service.synth import sim as lab_sim
+
+        lab_sim.STRIKE_CONTACT_PROCESSING_M = None
     for seed in args.seeds:
         ls = lab_session(SynthSpec(object="baking_box", interaction="strike", seed=seed, preset="tiny", n_frames=900,
                                    friction_object_table=0.15, effects=HiddenEffects(restitution=E_TRUE)),
@@ -162,9 +290,21 @@ def main() -> None:
     bl.add_argument("--pose-noise", type=float, default=0.0)
     bl.add_argument("--contact-breaking", nargs="+", default=["off", "0.001"])
     bl.add_argument("--contact-erp", default="off", help="contact erp with a contact breaking threshold set ('off': Bullet's)")
+    bl.add_argument("--lab-strike-contact", choices=("touch", "bullet"), default="touch",
+                    help="the lab's sphere-object contact: from the touch on (the lab's setting) or as Bullet makes it")
+    lb = sub.add_parser("lab")
+    lb.add_argument("--speeds", type=float, nargs="+", default=[0.4, 0.55, 0.7], help="commanded strike speeds, m/s")
+    lb.add_argument("--phases", type=int, default=12)
+    lb.add_argument("--restitutions", type=float, nargs="+", default=[0.1, 0.3, 0.5])
+    lb.add_argument("--sphere-contact", nargs="+", choices=("bullet", "touch"), default=["bullet", "touch"])
+    lb.add_argument("--breaking", nargs="+", default=["off"], help="Bullet's contact breaking threshold(s) for the whole "
+                    "world (a factor of each shape's bounding radius), or 'off' for Bullet's 0.02")
+    lb.add_argument("--mu", type=float, default=0.0, help="table friction")
+    lb.add_argument("--height-frac", type=float, default=None, help="contact height / box height (default: the CoM's)")
+    sub.add_parser("lab-rest")
     args = ap.parse_args()
     print("command: python benchmarks/strike_restitution.py " + " ".join(sys.argv[1:]), flush=True)
-    phases(args) if args.cmd == "phases" else blocks(args)
+    {"phases": phases, "blocks": blocks, "lab": lab, "lab-rest": lab_rest}[args.cmd](args)
 
 
 if __name__ == "__main__":

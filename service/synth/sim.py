@@ -31,7 +31,9 @@ Model
   held arm's reflected mass: the launch follows the sphere's measured path. What shows: launch speed vs
   sphere speed (restitution), constant deceleration mu g (table friction), speed-proportional deceleration
   (linear damping), spin decay (angular damping), heading-dependent deceleration (tilt), launch time vs the
-  robot log (clock offset).
+  robot log (clock offset). The sphere-object contact of a strike is solved only from the touch on
+  (``STRIKE_CONTACT_PROCESSING_M``): a contact point Bullet makes while the gap is still open would close the gap
+  instead of bouncing, and a third of the strikes lost their bounce at random.
 - Semi-implicit Euler at ``physics_hz`` (240 Hz default); the object state is sampled at the frame
   times i / fps, the robot at every physics step.
 Hidden viscous damping b (1/s) is applied as explicit forces, F = -m b_lin v at the CoM and
@@ -67,6 +69,14 @@ STRIKE_RUN_UP = 0.05  # m between the sphere and the object before a strike
 STRIKE_SPEED = (0.4, 0.7)  # m/s, commanded speed at the surface (random per strike)
 STRIKE_BRAKE = 0.01  # m of constant deceleration after the surface
 STRIKE_HOLD = 0.35  # s the sphere stays while the object slides
+# strike: the sphere-object contact is solved only from the touch on (m; Bullet's contact processing threshold, set on
+# the sphere, which the pair's contact manifold takes as the smaller of the two bodies' values; None = Bullet's
+# default, every contact point made is solved). Bullet makes a point while the gap d is still below its breaking
+# threshold (0.02 x the smaller shape's bounding radius: 0.64 mm for the sphere) and its solver then closes the gap at
+# d / h instead of bouncing, so the bounce of a strike was lost by up to d / h = 0.15 m/s at 240 Hz in about a third
+# of the strikes, at random with where in a step the touch fell (docs/residuals.md §7, "The synthetic lab's strikes").
+# The object-table pair keeps Bullet's default (rest and sliding unchanged); push, pivot and topple keep it too.
+STRIKE_CONTACT_PROCESSING_M: float | None = 0.0
 
 
 def controller(interaction: str) -> tuple[float, float, float]:
@@ -389,6 +399,78 @@ def _inertia(obj: SynthObject) -> np.ndarray:
     return np.asarray(obj.mesh.moment_inertia, float) * (obj.mass / obj.mesh.mass)
 
 
+def configure_world(cid: int, dt: float, g: np.ndarray) -> None:
+    """The lab's engine settings on client ``cid``: time step ``dt`` (s), 60 solver iterations, deterministic pairs,
+    gravity ``g`` (3,) m/s^2 in W; Bullet's defaults otherwise (contact breaking, restitution threshold, erp)."""
+    pb.setTimeStep(dt, physicsClientId=cid)
+    pb.setPhysicsEngineParameter(numSolverIterations=60, deterministicOverlappingPairs=1, physicsClientId=cid)
+    pb.setGravity(*np.asarray(g, float).tolist(), physicsClientId=cid)
+
+
+def add_table(cid: int, table_h: float, mu: float, rolling_friction: float) -> int:
+    """The table (static box, top at z = ``table_h`` in W once Bullet's 1 mm hull margin is counted) with friction
+    ``mu`` and rolling resistance ``rolling_friction`` (m); restitution 1 (the pair takes the object's)."""
+    tcol = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=TABLE_HALF, physicsClientId=cid)
+    # hull shapes carry a 1 mm margin: lower the table and shrink the sphere by it so that the true
+    # surfaces touch (the object rests on z = table_h, the sphere touches the exported mesh)
+    table = pb.createMultiBody(0.0, tcol, -1, [TABLE_CENTRE_XY[0], TABLE_CENTRE_XY[1], table_h - HULL_MARGIN - TABLE_HALF[2]], physicsClientId=cid)
+    # Bullet's pair rolling friction is rho_a mu_b + rho_b mu_a: table (rho, mu_OT), object (0, 1) -> rho
+    pb.changeDynamics(table, -1, lateralFriction=mu, restitution=1.0, rollingFriction=rolling_friction, spinningFriction=0.0, physicsClientId=cid)
+    return table
+
+
+def add_object(cid: int, obj: SynthObject, X_WM0: np.ndarray, com_M: np.ndarray, restitution: float,
+               tmp_dir: str) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    """The object at pose ``X_WM0`` (mesh frame M in W), CoM ``com_M`` (m, M), restitution ``restitution``: compound of
+    its convex parts (files written to ``tmp_dir`` when there are several), inertial frame = principal axes at the
+    CoM. Returns (body id, X_MI (4,4) inertial frame in M, inertia about the CoM (3,3) in M axes, principal moments)."""
+    if len(obj.parts) == 1:
+        ocol = pb.createCollisionShape(pb.GEOM_MESH, vertices=np.asarray(obj.parts[0].convex_hull.vertices).tolist(), physicsClientId=cid)
+    else:
+        files = []
+        for k, part in enumerate(obj.parts):
+            f = os.path.join(tmp_dir, f"part{k}.obj")
+            part.convex_hull.export(f)
+            files.append(f)
+        ocol = pb.createCollisionShapeArray(shapeTypes=[pb.GEOM_MESH] * len(files), fileNames=files, physicsClientId=cid)
+    I_M = _inertia(obj)
+    evals, evecs = np.linalg.eigh(I_M)
+    if np.linalg.det(evecs) < 0:
+        evecs[:, 2] *= -1
+    X_MI = make_X(evecs, com_M)  # inertial frame in the mesh frame
+    body = pb.createMultiBody(
+        obj.mass,
+        ocol,
+        -1,
+        X_WM0[:3, 3].tolist(),  # createMultiBody takes the link (mesh) frame ...
+        xyzw(mat_to_quat(X_WM0[:3, :3])),
+        baseInertialFramePosition=com_M.tolist(),
+        baseInertialFrameOrientation=xyzw(mat_to_quat(evecs)),
+        physicsClientId=cid,
+    )
+    # ... while getBasePositionAndOrientation reports the inertial frame: X_WM = X_WI @ inv(X_MI)
+    pb.changeDynamics(
+        body, -1, lateralFriction=1.0, restitution=restitution, rollingFriction=0.0, spinningFriction=0.0,
+        linearDamping=0.0, angularDamping=0.0, localInertiaDiagonal=evals.tolist(), physicsClientId=cid,
+    )
+    return body, X_MI, I_M, evals
+
+
+def add_sphere(cid: int, interaction: str, p_W, mu_or: float, table: int) -> int:
+    """The end-effector sphere at ``p_W`` (m, W) for ``interaction`` (its mass from ``controller``), friction ``mu_or``,
+    not colliding with ``table``. For strikes its contact with the object is solved from the touch on
+    (``STRIKE_CONTACT_PROCESSING_M``), set before any contact manifold of the sphere exists."""
+    scol = pb.createCollisionShape(pb.GEOM_SPHERE, radius=EE_RADIUS - HULL_MARGIN, physicsClientId=cid)
+    # the strike's arm is heavier and as stiff per kg (same bandwidth); the other interactions keep EE_MASS
+    ee_mass, _, _ = controller(interaction)
+    sphere = pb.createMultiBody(ee_mass, scol, -1, list(p_W), physicsClientId=cid)
+    pb.changeDynamics(sphere, -1, lateralFriction=mu_or, restitution=1.0, rollingFriction=0.0, spinningFriction=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
+    pb.setCollisionFilterPair(sphere, table, -1, -1, 0, physicsClientId=cid)
+    if interaction == "strike" and STRIKE_CONTACT_PROCESSING_M is not None:
+        pb.changeDynamics(sphere, -1, contactProcessingThreshold=float(STRIKE_CONTACT_PROCESSING_M), physicsClientId=cid)
+    return sphere
+
+
 def simulate(
     obj: SynthObject,
     *,
@@ -418,66 +500,22 @@ def simulate(
     cid = pb.connect(pb.DIRECT)
     tmp = tempfile.TemporaryDirectory(prefix="vysics-synth-")
     try:
-        pb.setTimeStep(dt, physicsClientId=cid)
-        pb.setPhysicsEngineParameter(numSolverIterations=60, deterministicOverlappingPairs=1, physicsClientId=cid)
         tilt = np.asarray(effects.table_tilt, float)
         R_tilt = so3_exp(np.array([0.0, tilt[1], 0.0])) @ so3_exp(np.array([tilt[0], 0.0, 0.0]))
         g = R_tilt @ np.array([0.0, 0.0, -GRAVITY])
-        pb.setGravity(*g.tolist(), physicsClientId=cid)
+        configure_world(cid, dt, g)
 
-        # table
-        tcol = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=TABLE_HALF, physicsClientId=cid)
-        # hull shapes carry a 1 mm margin: lower the table and shrink the sphere by it so that the true
-        # surfaces touch (the object rests on z = table_h, the sphere touches the exported mesh)
-        table = pb.createMultiBody(0.0, tcol, -1, [TABLE_CENTRE_XY[0], TABLE_CENTRE_XY[1], table_h - HULL_MARGIN - TABLE_HALF[2]], physicsClientId=cid)
         mu_true = effects.friction_object_table if effects.friction_object_table is not None else mu_ot
-        # Bullet's pair rolling friction is rho_a mu_b + rho_b mu_a: table (rho, mu_OT), object (0, 1) -> rho
-        pb.changeDynamics(table, -1, lateralFriction=mu_true, restitution=1.0, rollingFriction=rolling_friction, spinningFriction=0.0, physicsClientId=cid)
-
-        # object: compound of convex parts; inertial frame = principal axes at the CoM
-        if len(obj.parts) == 1:
-            ocol = pb.createCollisionShape(pb.GEOM_MESH, vertices=np.asarray(obj.parts[0].convex_hull.vertices).tolist(), physicsClientId=cid)
-        else:
-            files = []
-            for k, part in enumerate(obj.parts):
-                f = os.path.join(tmp.name, f"part{k}.obj")
-                part.convex_hull.export(f)
-                files.append(f)
-            ocol = pb.createCollisionShapeArray(shapeTypes=[pb.GEOM_MESH] * len(files), fileNames=files, physicsClientId=cid)
+        table = add_table(cid, table_h, mu_true, rolling_friction)
         com_M = np.asarray(effects.com_offset, float)
-        I_M = _inertia(obj)
-        evals, evecs = np.linalg.eigh(I_M)
-        if np.linalg.det(evecs) < 0:
-            evecs[:, 2] *= -1
-        X_MI = make_X(evecs, com_M)  # inertial frame in the mesh frame
         R0 = so3_exp(np.array([0.0, 0.0, start_yaw]))
         V0 = np.asarray(obj.mesh.vertices) @ R0.T
         z0 = table_h - V0[:, 2].min() + 0.0002
         X_WM0 = make_X(R0, np.array([start_xy[0], start_xy[1], z0]))
-        body = pb.createMultiBody(
-            obj.mass,
-            ocol,
-            -1,
-            X_WM0[:3, 3].tolist(),  # createMultiBody takes the link (mesh) frame ...
-            xyzw(mat_to_quat(X_WM0[:3, :3])),
-            baseInertialFramePosition=com_M.tolist(),
-            baseInertialFrameOrientation=xyzw(mat_to_quat(evecs)),
-            physicsClientId=cid,
-        )
-        # ... while getBasePositionAndOrientation reports the inertial frame: X_WM = X_WI @ inv(X_MI)
-        pb.changeDynamics(
-            body, -1, lateralFriction=1.0, restitution=effects.restitution, rollingFriction=0.0, spinningFriction=0.0,
-            linearDamping=0.0, angularDamping=0.0, localInertiaDiagonal=evals.tolist(), physicsClientId=cid,
-        )
-
-        # end-effector sphere
-        scol = pb.createCollisionShape(pb.GEOM_SPHERE, radius=EE_RADIUS - HULL_MARGIN, physicsClientId=cid)
-        # the strike's arm is heavier and as stiff per kg (same bandwidth); the other interactions keep EE_MASS
+        body, X_MI, I_M, evals = add_object(cid, obj, X_WM0, com_M, effects.restitution, tmp.name)
         ee_mass, ee_k, ee_d = controller(interaction)
-        sphere = pb.createMultiBody(ee_mass, scol, -1, [start_xy[0], start_xy[1], table_h + 0.6], physicsClientId=cid)
         mu_or_true = effects.friction_object_robot if effects.friction_object_robot is not None else mu_or
-        pb.changeDynamics(sphere, -1, lateralFriction=mu_or_true, restitution=1.0, rollingFriction=0.0, spinningFriction=0.0, linearDamping=0.0, angularDamping=0.0, physicsClientId=cid)
-        pb.setCollisionFilterPair(sphere, table, -1, -1, 0, physicsClientId=cid)
+        sphere = add_sphere(cid, interaction, [start_xy[0], start_xy[1], table_h + 0.6], mu_or_true, table)
 
         def X_WM_now() -> np.ndarray:
             pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=cid)

@@ -1,0 +1,67 @@
+"""The synthetic lab's strikes bounce as declared: the 10 kg sphere strikes a resting baking box through its CoM on a
+frictionless table, in the lab's own world (``tests/synth/strike_lab.py``), with the touch at six places within a
+physics step. A heavy striker launches the box at (1 + e) x the launch with e = 0 in every phase. With every contact
+point solved as Bullet makes it (``STRIKE_CONTACT_PROCESSING_M = None``, the lab before) the point is made while the
+gap is still open and the bounce is lost in some phases (here 3 of the 6); solved from the touch on (the lab's
+setting) it is kept in all (docs/residuals.md §7, "The synthetic lab's strikes").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.synth import sim
+from tests.synth.strike_lab import lab_strike
+
+V = 0.45  # m/s, the command's speed at the surface (the sphere hits at about 0.38 m/s)
+PHASES = (np.arange(6) + 0.5) / 6
+E = 0.3
+
+
+def _ratios() -> tuple[np.ndarray, np.ndarray]:
+    """Per phase: launch(e = 0.3) / launch(e = 0), and launch(e = 0.3) / approach speed."""
+    r0 = np.array([lab_strike(V, 0.0, ph) for ph in PHASES])
+    r3 = np.array([lab_strike(V, E, ph) for ph in PHASES])
+    return r3[:, 1] / r0[:, 1], r3[:, 1] / r3[:, 0]
+
+
+def test_lab_strike_launches_with_the_declared_restitution_in_every_phase():
+    assert sim.STRIKE_CONTACT_PROCESSING_M == 0.0
+    q, launch = _ratios()
+    assert np.all(np.abs(q - (1.0 + E)) < 0.03), q  # measured 1.278-1.297
+    # a heavy striker: (1 + e) m_E / (m_E + m) = 1.262; Bullet's push-out of the penetration made in the step of the
+    # touch adds up to a few per cent (measured 1.265-1.321)
+    physics = (1.0 + E) * sim.STRIKE_EE_MASS / (sim.STRIKE_EE_MASS + 0.3)
+    assert np.all((launch > physics - 0.01) & (launch < physics * 1.06)), launch
+
+
+def test_bullets_default_loses_the_bounce_in_some_phases(monkeypatch):
+    monkeypatch.setattr(sim, "STRIKE_CONTACT_PROCESSING_M", None)
+    q, _ = _ratios()
+    assert int((q < 1.0 + 0.7 * E).sum()) >= 2, q  # measured 1.17, 0.94, 1.08 in three of the six
+
+
+def test_push_spheres_keep_bullets_default(monkeypatch):
+    """The setting is the strike's: a push sphere's contact is solved as Bullet makes it (push, pivot and topple sessions
+    are unchanged; their contacts are sustained, not impacts)."""
+    import pybullet as pb
+
+    calls = []
+    real = pb.changeDynamics
+
+    def spy(*a, **kw):
+        calls.append(kw)
+        return real(*a, **kw)
+
+    monkeypatch.setattr(pb, "changeDynamics", spy)
+    cid = pb.connect(pb.DIRECT)
+    try:
+        table = sim.add_table(cid, 0.0, 0.3, 0.0)
+        for inter in ("push", "pivot", "topple", "strike"):
+            calls.clear()
+            sim.add_sphere(cid, inter, [0.0, 0.0, 0.5], 0.15, table)
+            set_here = [kw["contactProcessingThreshold"] for kw in calls if "contactProcessingThreshold" in kw]
+            assert set_here == ([0.0] if inter == "strike" else []), inter
+    finally:
+        pb.disconnect(physicsClientId=cid)
