@@ -146,7 +146,9 @@ class ResidualConfig:
     # contact point before they touch; with 0.02 m a strike's bounce was lost in 5-7 of 12 contact phases and 46 of 80
     # toss landings declared e = 0.5 rebounded like e = 0 (the point made many sub-steps ahead of the touch), with 1 mm
     # (about the gap a 0.5 m/s strike closes in one 2 ms sub-step) in none. 1 mm is the default (docs/residuals.md §6,
-    # §7 "The toss generator's bounce")
+    # §7 "The toss generator's bounce"). The value is pybullet's contactBreakingThreshold, which Bullet scales by the
+    # smaller shape's bounding radius: "1 mm" makes points within about 0.03 mm for the loop's sphere and 0.09 mm for a
+    # 10.5 cm cube on the table (§6, "What the value is in Bullet"); the name keeps the unit the setting is given in
     contact_breaking_m: float | None = 0.001
     # fraction of a contact's penetration the built-in simulator pushes out per sub-step (None: Bullet's default):
     # with contacts made at the touch (contact_breaking_m) a strike starts inside the object by up to v h, and the
