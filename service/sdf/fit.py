@@ -3,7 +3,8 @@
 Unknown: S, a (nx,ny,nz) grid of signed distances in O (m), trilinear between voxel centres.
 For a sample at camera depth z on a ray with observed object depth d (τ = truncation):
 
-- near-surface band, −τ_b ≤ z − d ≤ τ:       w_s · ((S − (d − z)) / τ)²   (τ_b = cfg.trunc_back, default τ)
+- near-surface band, −τ_b ≤ z − d ≤ τ:       w_s · ((S − (d − z)) / τ)²   (τ_b = cfg.trunc_back, default τ;
+                                                                           per ray ``RaySet.back`` where given)
 - empty space, z < d − τ:                    w_e · |S/τ − 1| · [S < τ]          (one-sided toward +τ)
 - free ring rays with a non-object reading f, z < f − τ: the same empty-space term
 - free ring rays with no reading at all:     w_u · (S/τ − 0.1)² · [S < 0.1τ]     (uncertain free space)
@@ -156,6 +157,9 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None) ->
     zin_t = torch.from_numpy(zin.astype(np.float32))
     far_t = torch.from_numpy(far_end.astype(np.float32))
     w_t = torch.from_numpy(rays.weight.astype(np.float32))
+    back_t = None  # per-ray band depth behind the reading, in τ (RaySet.back; nan: the config's)
+    if rays.back is not None:
+        back_t = torch.from_numpy(np.where(np.isfinite(rays.back), rays.back / tau, back).astype(np.float32))
     uncertain_t = torch.from_numpy(~obj & ~np.isfinite(rays.free_until))
     obj_t = torch.from_numpy(obj)
     lo_t, hi_t = torch.tensor(lo, dtype=torch.float32), torch.tensor(hi, dtype=torch.float32)
@@ -174,7 +178,8 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None) ->
         u = (torch.arange(ns, dtype=torch.float32) + torch.rand(B, ns, generator=gen)) / ns  # stratified (B,ns)
         un = (torch.arange(n_near, dtype=torch.float32) + torch.rand(B, n_near, generator=gen)) / n_near
         uf = (torch.arange(n_far, dtype=torch.float32) + torch.rand(B, n_far, generator=gen)) / n_far
-        z_near = dd[:, None] + tau * ((2.0 + back) * un - 2.0)  # [d − 2τ, d + τ_b]
+        bk = back if back_t is None else back_t[r][:, None]
+        z_near = dd[:, None] + tau * ((2.0 + bk) * un - 2.0)  # [d − 2τ, d + τ_b]
         z_far = z0[:, None] + (z1 - z0).clamp(min=0)[:, None] * uf
         z_obj = torch.cat([z_near, z_far], 1)
         z_free = z0[:, None] + (z1 - z0).clamp(min=0)[:, None] * u
@@ -183,7 +188,7 @@ def _fit(rays, cfg, init, extra_losses, bounds_O, progress, halfspace_O=None) ->
         inside = ((p >= lo_t) & (p <= hi_t)).all(-1)
         S = query_fn(p.reshape(-1, 3)).reshape(B, ns) / tau
         diff = (dd[:, None] - z) / tau
-        band = isobj[:, None] & (diff <= 1.0) & (diff >= -back) & inside
+        band = isobj[:, None] & (diff <= 1.0) & (diff >= -bk) & inside
         empty = inside & ((isobj[:, None] & (diff > 1.0)) | (~isobj & ~isunc)[:, None] & (z < z1[:, None]))
         unc = inside & isunc[:, None]
         ww = w[:, None].expand(B, ns)

@@ -26,8 +26,10 @@ def rays_from_frame(
     keep: np.ndarray | None = None,
     weight: float = 1.0,
     rng: np.random.Generator | None = None,
+    back: np.ndarray | None = None,
 ) -> RaySet:
-    """RaySet of one frame. depth (H,W) m (0 = none), mask (H,W) bool, K (3,3), X_OC (4,4)."""
+    """RaySet of one frame. depth (H,W) m (0 = none), mask (H,W) bool, K (3,3), X_OC (4,4). ``back`` (H,W) m,
+    optional: the band depth behind the reading of each pixel's object ray (``RaySet.back``; nan: the fit's)."""
     import cv2
 
     rng = rng or np.random.default_rng(0)
@@ -66,4 +68,8 @@ def rays_from_frame(
     free_until = np.full(len(u), np.inf)
     fd = d_all[n_o:]
     free_until[n_o:] = np.where(fd > 0, fd, np.inf)
-    return RaySet(orig, dirs_O, dep, free_until, np.full(len(u), float(weight)))
+    bk = None
+    if back is not None:
+        bk = np.full(len(u), np.nan)
+        bk[:n_o] = back[vo, uo]
+    return RaySet(orig, dirs_O, dep, free_until, np.full(len(u), float(weight)), back=bk)

@@ -44,6 +44,9 @@ class RaySet:
     depth: np.ndarray  # (R,) observed object depth, m; 0 for free rays
     free_until: np.ndarray  # (R,) depth of the non-object reading of free rays (inf = none); ignored for object rays
     weight: np.ndarray  # (R,) ray weight
+    back: np.ndarray | None = None  # (R,) depth of the band behind an object ray's reading, m (nan: the fit's
+    # SdfConfig.trunc_back); None: every ray the fit's. A reading at a silhouette, where the line of sight grazes the
+    # object, says nothing about the object behind it (service.tracking.visible.silhouette_pixels)
 
     def __post_init__(self):
         n = len(self.depth)
@@ -51,7 +54,7 @@ class RaySet:
             a = getattr(self, name)
             if a.shape != (n, 3):
                 raise ValueError(f"RaySet.{name}: expected shape ({n}, 3), got {a.shape}")
-        for name in ("free_until", "weight"):
+        for name in ("free_until", "weight") + (("back",) if self.back is not None else ()):
             a = getattr(self, name)
             if a.shape != (n,):
                 raise ValueError(f"RaySet.{name}: expected shape ({n},), got {a.shape}")
@@ -61,7 +64,16 @@ class RaySet:
 
     @staticmethod
     def concatenate(parts: "list[RaySet]") -> "RaySet":
-        return RaySet(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("origins_O", "dirs_O", "depth", "free_until", "weight")))
+        back = None
+        if any(p.back is not None for p in parts):
+            back = np.concatenate([p.back if p.back is not None else np.full(len(p), np.nan) for p in parts])
+        return RaySet(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("origins_O", "dirs_O", "depth", "free_until", "weight")),
+                      back=back)
+
+    def subset(self, k: np.ndarray) -> "RaySet":
+        """The rays selected by ``k`` (bool mask or indices)."""
+        return RaySet(self.origins_O[k], self.dirs_O[k], self.depth[k], self.free_until[k], self.weight[k],
+                      back=None if self.back is None else self.back[k])
 
     @property
     def surface_points_O(self) -> np.ndarray:

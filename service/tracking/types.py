@@ -122,6 +122,16 @@ class TrackingConfig:
     sdf_ring_px: int = 30  # dilation of the mask for free-space rays
     sdf_erode_px: int = 2  # erosion of the mask for object rays
     sdf_denoise: float = 0.015  # object rays farther than this from the model are dropped
+    # object rays within sdf_silhouette_px (0: off) of a silhouette (a non-mask pixel behind them, none in front:
+    # visible.silhouette_pixels), or with sdf_silhouette_margin (m) only those of them more than that behind the plane
+    # of the mask's interior (visible.blended_pixels: a sensor's blend of object and background), get a band of
+    # sdf_silhouette_back (m) behind their reading instead of the fit's τ, or with sdf_silhouette_drop no ray at all.
+    # Off: on the real cube video the blended readings make its long extent, but every variant loses on the
+    # synthetic development sessions (docs/tracking.md, "The real cube's long extent")
+    sdf_silhouette_px: int = 0
+    sdf_silhouette_back: float = 0.0
+    sdf_silhouette_margin: float | None = None
+    sdf_silhouette_drop: bool = False
     visible_samples: int = 3000  # samples on the convex hull of the visible mesh (plus its vertices)
     visible_depth_tol: float = 0.01  # |z_render − z_obs| for the visibility check
     visible_frames: int = 30
@@ -431,6 +441,16 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not 0 <= self.mask_trim_min <= 1:
             raise ValueError(f"TrackingConfig.mask_trim_min must be in [0, 1], not {self.mask_trim_min!r}")
+        if not (isinstance(self.sdf_silhouette_px, int) and not isinstance(self.sdf_silhouette_px, bool)
+                and self.sdf_silhouette_px >= 0):
+            raise ValueError(f"TrackingConfig.sdf_silhouette_px must be an int >= 0, not {self.sdf_silhouette_px!r}")
+        if not 0 <= self.sdf_silhouette_back <= self.sdf.trunc:
+            raise ValueError(f"TrackingConfig.sdf_silhouette_back must be in [0, sdf.trunc = {self.sdf.trunc}], not "
+                             f"{self.sdf_silhouette_back!r}")
+        if self.sdf_silhouette_margin is not None and not self.sdf_silhouette_margin >= 0:
+            raise ValueError(f"TrackingConfig.sdf_silhouette_margin must be None or >= 0, not {self.sdf_silhouette_margin!r}")
+        if not isinstance(self.sdf_silhouette_drop, bool):
+            raise ValueError(f"TrackingConfig.sdf_silhouette_drop must be a bool, not {self.sdf_silhouette_drop!r}")
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
         for name in ("resettle_tip_deg", "resettle_min_tip_deg", "resettle_min_deg", "resettle_min_dist",

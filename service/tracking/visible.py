@@ -13,6 +13,10 @@ them filled. Support closure (``sdf_support_hull``): the hull also takes the see
 plane, except in columns that reach seen-empty space before a seen surface going up (``open_columns``: a cavity
 seen into from above), and not at all when most of what it adds is so (``sdf_support_open_gate``: a mug).
 
+Silhouette readings (``sdf_silhouette_px``, off): the object rays next to the object's outline against the
+background (``silhouette_pixels``), or those of them that lie behind the plane of the mask's interior (``blended_pixels``:
+the sensor's blend of object and background depth), get no band behind the reading or no ray at all.
+
 Other views' evidence: ``drop_contradicted`` (``sdf_drop_contradicted``) drops the object rays whose surface point
 another of the frames saw in front of its own reading (``service.sdf.contradicted_readings``: flying pixels,
 misregistered edges).
@@ -45,6 +49,67 @@ def below_table_halfspace(X_WO0: np.ndarray, table_height: float) -> np.ndarray:
     """(4,) plane (n, b) in O with n·p_O + b = table_height − z_W(p) at frame 0: positive below the table, where
     nothing of the object can be (it rests on the table in the first frame)."""
     return np.concatenate([-X_WO0[2, :3], [table_height - X_WO0[2, 3]]])
+
+
+def silhouette_pixels(depth: np.ndarray, mask: np.ndarray, px: int, jump: float) -> np.ndarray:
+    """(H,W) bool: pixels of ``mask`` (H,W) bool with a reading in ``depth`` (H,W) m that lie within ``px`` pixels of a
+    non-mask pixel behind them (a reading farther than theirs by more than ``jump`` + 2 % of their depth, or no
+    reading) and of no non-mask pixel in front of them by as much (an occluder). There the line of sight leaves the
+    object: it grazes its outline (a limb, an edge), so the object is thin along it behind the reading, and a depth
+    sensor blends the object's and the background's depth over a few pixels (flying pixels, edge fattening). Where
+    an occluder bounds the mask, the object goes on behind it and the pixel is not a silhouette."""
+    import cv2
+
+    if px <= 0:
+        return np.zeros(mask.shape, bool)
+    k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * px + 1, 2 * px + 1))
+    out = ~mask
+    d = depth.astype(np.float32)
+    behind = cv2.dilate(np.where(out, np.where(d > 0, d, np.float32(np.inf)), np.float32(0)), k)  # farthest outside
+    front = cv2.erode(np.where(out & (d > 0), d, np.float32(np.inf)), k)  # nearest outside reading
+    tol = jump + 0.02 * d
+    return mask & (d > 0) & (behind > d + tol) & ~(front < d - tol)
+
+
+def blended_pixels(depth: np.ndarray, mask: np.ndarray, px: int, jump: float, margin: float,
+                   radius: int | None = None) -> np.ndarray:
+    """(H,W) bool: ``silhouette_pixels`` (within ``px``) whose reading lies more than ``margin`` (m) behind the
+    surface of the mask's interior: the plane z(u, v) fitted by least squares to the readings of mask pixels more
+    than ``px`` from the mask's edge within ``radius`` pixels (default px + 4), at least 10 of them. A depth sensor
+    blends the object's depth with the background's over a few pixels at a silhouette; the blend lies between the
+    two, behind the object's surface, in space the object does not fill (and that the camera cannot see: it is in
+    the object's shadow), so the reading is not the object's. One image does not tell such a blend from a narrow
+    face seen at grazing next to the outline (a box's top beside its front face): that face lies behind the
+    interior's plane too (docs/tracking.md, "The real cube's long extent")."""
+    import cv2
+
+    sil = silhouette_pixels(depth, mask, px, jump)
+    if not sil.any():
+        return sil
+    r = px + 4 if radius is None else int(radius)
+    inner = (mask & (depth > 0) & (cv2.distanceTransform(mask.astype(np.uint8), cv2.DIST_L2, 5) > px + 0.5))
+    H, W = depth.shape
+    vg, ug = np.mgrid[0:H, 0:W].astype(np.float64)
+    w = inner.astype(np.float64)
+    z = np.where(inner, depth, 0.0).astype(np.float64)
+    ys, xs = np.nonzero(sil)
+    box = (2 * r + 1, 2 * r + 1)
+
+    def S(a):  # window sums at the silhouette pixels
+        return cv2.boxFilter(a, cv2.CV_64F, box, normalize=False, borderType=cv2.BORDER_CONSTANT)[ys, xs]
+
+    n, su, sv, sz = S(w), S(w * ug), S(w * vg), S(z)
+    suu, suv, svv, suz, svz = S(w * ug * ug), S(w * ug * vg), S(w * vg * vg), S(z * ug), S(z * vg)
+    A = np.stack([np.stack([suu, suv, su], -1), np.stack([suv, svv, sv], -1), np.stack([su, sv, n], -1)], -2)
+    b = np.stack([suz, svz, sz], -1)
+    ok = n >= 10
+    ok[ok] &= np.abs(np.linalg.det(A[ok])) > 1e-6 * np.maximum(n[ok], 1) ** 3
+    out = np.zeros_like(sil)
+    if ok.any():
+        coef = np.linalg.solve(A[ok], b[ok][..., None])[..., 0]
+        pred = coef[:, 0] * xs[ok] + coef[:, 1] * ys[ok] + coef[:, 2]
+        out[ys[ok], xs[ok]] = depth[ys[ok], xs[ok]] - pred > margin
+    return out
 
 
 def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng: np.random.Generator,
@@ -81,24 +146,35 @@ def sdf_rays(session, X_WO: np.ndarray, frames: np.ndarray, model_tree, cfg, rng
             if st.mean() > cfg.carve_frame_frac:
                 continue  # inconsistent with the space the keyframes saw empty: wrong pose or clutter
             ok[ok] &= ~st
-        frames_in.append((int(i), depth, mask, X_OC, u, v, P_O, ok))
+        sil = None
+        if cfg.sdf_silhouette_px:
+            sil = silhouette_pixels(depth, mask, cfg.sdf_silhouette_px, cfg.edge_jump) \
+                if cfg.sdf_silhouette_margin is None else \
+                blended_pixels(depth, mask, cfg.sdf_silhouette_px, cfg.edge_jump, cfg.sdf_silhouette_margin)
+            if cfg.sdf_silhouette_drop:  # not the object's surface: no ray
+                ok &= ~sil[v, u]
+                sil = None
+        frames_in.append((int(i), depth, mask, X_OC, u, v, P_O, ok, sil))
     if carver is not None:
         # second pass: the frames that passed also carve each other's points
         from service.tracking.tracker import FreeSpace
 
         fs = FreeSpace(K, session.X_WC, carver.margin, carver.px)
-        for i, depth, _, _, _, _, _, _ in frames_in:
+        for i, depth, *_ in frames_in:
             fs.add(i, depth, X_WO[i])
         for f in frames_in:
             ok = f[7]
             if ok.any():
                 ok[ok] &= ~fs.seen_through(f[6][ok])
     parts = []
-    for i, depth, mask, X_OC, u, v, P_O, ok in frames_in:
+    for i, depth, mask, X_OC, u, v, P_O, ok, sil in frames_in:
         keep = np.zeros(mask.shape, bool)
         keep[v[ok], u[ok]] = True
+        back = None
+        if sil is not None:  # silhouette readings: no band (or a thin one) behind them
+            back = np.where(sil, cfg.sdf_silhouette_back, np.nan)
         parts.append(rays_from_frame(depth, mask, K, X_OC, stride=cfg.sdf_stride, ring_px=cfg.sdf_ring_px,
-                                     max_object_rays=2000, max_free_rays=1500, keep=keep, rng=rng))
+                                     max_object_rays=2000, max_free_rays=1500, keep=keep, rng=rng, back=back))
     if not parts:
         from service.errors import StageFailed
 
@@ -227,8 +303,7 @@ def drop_contradicted(session, X_WO: np.ndarray, frames: np.ndarray, rays: RaySe
 
     bad = contradicted_readings(rays, _views(session, X_WO, frames), margin=cfg.sdf_contradict_margin,
                                 px=cfg.sdf_band_px, min_views=cfg.sdf_contradict_views)
-    k = ~bad
-    return RaySet(rays.origins_O[k], rays.dirs_O[k], rays.depth[k], rays.free_until[k], rays.weight[k])
+    return rays.subset(~bad)
 
 
 def visible_points(session, X_WO: np.ndarray, frames: np.ndarray, mesh: Mesh, cfg,

@@ -14,6 +14,11 @@ def test_defaults_and_fast_are_valid():
 
 @pytest.mark.parametrize("change, words", [
     ({"max_rate_deg": float("nan")}, ["max_rate_deg"]),
+    ({"sdf_silhouette_px": -1}, ["sdf_silhouette_px"]),
+    ({"sdf_silhouette_px": 2.5}, ["sdf_silhouette_px"]),
+    ({"sdf_silhouette_back": 0.02}, ["sdf_silhouette_back", "trunc"]),
+    ({"sdf_silhouette_margin": -0.001}, ["sdf_silhouette_margin"]),
+    ({"sdf_silhouette_drop": 1}, ["sdf_silhouette_drop"]),
 ])
 def test_bad_settings_are_refused_with_the_field_named(change, words):
     with pytest.raises(ValueError) as e:
