@@ -26,7 +26,9 @@ replaces a track far from it a few frames after the landing, the settled frame a
 (``service.tracking.resettle``); after the loop the join moves along the tipping direction until the object's base
 is no longer where the settled frames see the table (``resettle_refine_frames``); the leading face is made square to
 the base the object stood on (``resettle_square_deg``, off), a join near a track that does not rest on the table is
-adopted too (``resettle_rest_deg``, off). After the gauge, the settled stretch of every landing checked is laid
+adopted too (``resettle_rest_deg``, off). The fall's frames of an adopted join are registered backwards from the
+settled frame with the turn about the leading bottom edge as one more start and as the judge among fits that are nearly
+as good (``resettle_tip_tol``). After the gauge, the settled stretch of every landing checked is laid
 flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
 registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
 Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast

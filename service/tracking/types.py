@@ -373,7 +373,8 @@ class TrackingConfig:
     # (resettle.path_keys), and among the consistent registrations whose fit score (inlier fraction - 0.02 per mm of
     # RMSE) is within resettle_tip_tol of the best the one nearest to the path wins (rotation in degrees plus
     # resettle_tip_m_deg degrees per metre of translation); the fit alone cannot tell them apart (0: off)
-    resettle_tip_tol: float = 0.02
+    resettle_tip_tol: float = 0.02  # on: development oat_carton 1381 worst 13.85 -> 7.83 deg, 1387 14.52 -> 6.52 deg;
+    # evaluation 710 medians within 0.02 deg / 0.01 mm, worst translation 6.50 -> 5.18 mm, its worst rotation (6.30) not reached
     resettle_tip_m_deg: float = 500.0
 
     def __post_init__(self) -> None:
