@@ -324,6 +324,55 @@ def tip_direction(X_a: np.ndarray, X_b: np.ndarray) -> tuple[np.ndarray, float] 
     return np.cross(h / np.linalg.norm(h), [0.0, 0.0, 1.0]), float(np.linalg.norm(w))
 
 
+def tip_path(X_a: np.ndarray, X_b: np.ndarray, pivot: np.ndarray) -> "callable":
+    """The poses of a topple between the pose X_a (4,4) before the fall and the settled pose X_b (4,4) as a turn
+    about the line through ``pivot`` (3,) (the leading bottom edge at X_a, on the table, in W, m) along the axis of
+    the rotation R_b R_aᵀ: ``path(u)`` (u in [0, 1]) turns X_a by u of that rotation about the line, plus u of the
+    residual slide (the landing's slide beyond the pure turn, and the errors of the pivot), so that path(0) = X_a
+    and path(1) = X_b. Returns the function u -> (4,4) X_WO."""
+    R_a, t_a = X_a[:3, :3], X_a[:3, 3]
+    w = so3_log(X_b[:3, :3] @ R_a.T)
+    slide = X_b[:3, 3] - (pivot + so3_exp(w) @ (t_a - pivot))
+
+    def path(u: float) -> np.ndarray:
+        R_u = so3_exp(u * w)
+        return make_X(R_u @ R_a, pivot + R_u @ (t_a - pivot) + u * slide)
+
+    return path
+
+
+def leading_pivot(B_W: np.ndarray, f: np.ndarray, table_height: float) -> np.ndarray:
+    """(3,) point of the leading bottom edge (W, m): the base points B_W (B,3) (``base_points`` placed at the pose
+    before the fall) moved along the horizontal unit direction f (3,) to their farthest extent along f, at their
+    centre across f, on the table."""
+    c = B_W.mean(0)
+    p = c + (float(np.max(B_W @ f)) - float(c @ f)) * f
+    p[2] = table_height
+    return p
+
+
+def path_keys(P_W: np.ndarray, poses: list[np.ndarray], tree, inlier_dist: float) -> list[tuple[float, float]]:
+    """Per pose X_WO of ``poses`` (list of (4,4)) how well the frame's points P_W (N,3) fit the model with KD-tree
+    ``tree`` (over its points in O) placed there: (fraction within ``inlier_dist``, minus the mean distance capped
+    at 2 cm); larger is better."""
+    keys = []
+    for X in poses:
+        X_OW = X_inv(X)
+        d, _ = tree.query(P_W @ X_OW[:3, :3].T + X_OW[:3, 3], distance_upper_bound=0.02)
+        d = np.minimum(d, 0.02)
+        keys.append((float(np.mean(d < inlier_dist)), -float(np.mean(d))))
+    return keys
+
+
+def path_offset(X: np.ndarray, poses: list[np.ndarray], m_deg: float) -> float:
+    """How far the pose X (4,4) is from the path ``poses`` (list of (4,4)): at the path pose whose rotation is
+    nearest, the rotation between them (degrees) plus ``m_deg`` degrees per metre of the distance between their
+    origins."""
+    d = [pose_distance(X, P) for P in poses]
+    k = int(np.argmin([a for _, a in d]))
+    return float(d[k][1] + m_deg * d[k][0])
+
+
 def rest_offsets(X: np.ndarray, X_j: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
                  cos_min: float = np.cos(np.radians(30.0)), tol: float = 0.005) -> tuple[float, float] | None:
     """How far the pose X (4,4) is from resting on the face the join X_j (4,4) lays on the table: (angle in degrees

@@ -26,7 +26,9 @@ replaces a track far from it a few frames after the landing, the settled frame a
 (``service.tracking.resettle``); after the loop the join moves along the tipping direction until the object's base
 is no longer where the settled frames see the table (``resettle_refine_frames``); the leading face is made square to
 the base the object stood on (``resettle_square_deg``, off), a join near a track that does not rest on the table is
-adopted too (``resettle_rest_deg``, off). After the gauge, the settled stretch of every landing checked is laid
+adopted too (``resettle_rest_deg``, off). The fall's frames of an adopted join are registered backwards from the
+settled frame with the turn about the leading bottom edge as one more start and as the judge among fits that are nearly
+as good (``resettle_tip_tol``). After the gauge, the settled stretch of every landing checked is laid
 flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
 registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
 Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast
@@ -739,11 +741,16 @@ def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
                      rmse: np.ndarray, model: ObjectModel, landings: list, cfg: TrackingConfig, icp_kw: dict) -> None:
     """The frames g0…i−1 of every adopted landing registered backwards from the settled frame i against ``model``
     (starts: the next frame's pose and the backward constant-velocity prediction), and from their forward pose; the
-    better consistent fit wins, a frame with none is lost. Updates X, tracked, frac, rmse in place."""
+    better consistent fit wins, a frame with none is lost. With ``resettle_tip_tol`` > 0 the tipping path is one
+    more start and decides among the fits that are nearly as good (``_tip_poses``, ``_on_path``). Updates X,
+    tracked, frac, rmse in place."""
+    from service.tracking.resettle import path_keys
+
     Q = model.Q[:: max(1, len(model.Q) // 4000)]
     for ld in landings:
         if not ld.adopted:
             continue
+        poses = _tip_poses(session, X, tracked, ld, model, cfg) if cfg.resettle_tip_tol > 0 else None
         for j in range(ld.i - 1, ld.g0 - 1, -1):
             o = obs[j]
             if len(o.P_W) < cfg.min_points:
@@ -755,14 +762,62 @@ def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
                 starts.append(X[j + 1])
                 if j + 2 < len(X) and tracked[j + 2]:
                     starts.append(X[j + 1] @ (X_inv(X[j + 2]) @ X[j + 1]))
-            best, best_ok = None, False
+            if poses:  # the path pose the frame's points fit best, among those consistent with its view
+                keys = path_keys(o.P_W, poses, model.tree, cfg.inlier_dist)
+                k = next((k for k in sorted(range(len(poses)), key=lambda k: keys[k], reverse=True)
+                          if consistent(poses[k])), None)
+                if k is not None:
+                    starts.append(poses[k])
+            best, best_ok, fits = None, False, []
             for Xs in starts:
                 r = icp(o.P_W, Xs, model.tree, model.Q, model.N, N_src=o.N_W, **{**icp_kw, "dist0": 0.02})
                 ok = _good(r, cfg) and consistent(r.X_WO)
+                fits.append((r, ok))
                 if best is None or (ok and not best_ok) or (ok == best_ok and _better(r, best)):
                     best, best_ok = r, ok
+            if poses and best_ok:
+                best = _on_path([r for r, ok in fits if ok], poses, cfg)
             X[j], frac[j], rmse[j] = best.X_WO, best.inlier_frac, best.rmse
             tracked[j] = best_ok
+
+
+def _fit_score(r: IcpResult) -> float:
+    """The registration score ``_better`` compares: inlier fraction minus 0.02 per millimetre of RMSE."""
+    return r.inlier_frac - 0.02 * r.rmse / 0.001
+
+
+def _on_path(fits: list[IcpResult], poses: list[np.ndarray], cfg: TrackingConfig) -> IcpResult:
+    """Among the (consistent, good) registrations ``fits`` whose score is within ``resettle_tip_tol`` of the best,
+    the one nearest to the tipping path ``poses`` (``resettle.path_offset``): where a few faces of a box fit a
+    range of poses equally (a face turning within its own plane, half the body hidden), the motion the table
+    imposes decides."""
+    from service.tracking.resettle import path_offset
+
+    top = max(_fit_score(r) for r in fits)
+    near = [r for r in fits if _fit_score(r) >= top - cfg.resettle_tip_tol]
+    return min(near, key=lambda r: path_offset(r.X_WO, poses, cfg.resettle_tip_m_deg))
+
+
+def _tip_poses(session, X: np.ndarray, tracked: np.ndarray, ld, model: ObjectModel, cfg: TrackingConfig
+               ) -> list[np.ndarray] | None:
+    """The poses X_WO (every degree) of the topple of landing ``ld`` as a turn about its leading bottom edge
+    (``resettle.tip_path``): from the last tracked frame a before the fall's start g0 to the settled frame i, about
+    the edge of the object's base (``resettle.base_points`` of ``model`` under frame 0's pose, placed at X[a]) at
+    its extent along the tipping direction, on the table (``resettle.leading_pivot``). None without a tracked frame
+    before g0, a horizontal turn or 30 base points."""
+    from service.tracking.resettle import base_points, leading_pivot, tip_direction, tip_path
+
+    a = next((k for k in range(ld.g0 - 1, -1, -1) if tracked[k]), None)
+    tip = tip_direction(X[a], X[ld.i]) if a is not None else None
+    if tip is None:
+        return None
+    f, turn = tip
+    B = base_points(model.Q, X[0], session.table_height)
+    if len(B) < 30:
+        return None
+    path = tip_path(X[a], X[ld.i], leading_pivot(B @ X[a][:3, :3].T + X[a][:3, 3], f, session.table_height))
+    n = max(2, int(np.ceil(np.degrees(turn))))
+    return [path(k / n) for k in range(n + 1)]
 
 
 def _spin_tau(model: ObjectModel, cfg: TrackingConfig) -> float:

@@ -373,3 +373,68 @@ def test_flush_rest_validated():
     with pytest.raises(ValueError, match="resettle_flush_rest_tol"):
         TrackingConfig(resettle_flush_rest_matches=2.5)
     assert TrackingConfig().resettle_flush_rest_tol == 0.002
+
+
+def test_tip_path_about_the_leading_edge_and_its_best_fitting_pose():
+    """The path of a carton tipped 90° about its bottom edge at +y, landed 1 cm beyond the pure turn: its ends, its
+    half-way pose (45° about the edge, half the slide), the leading edge found from the base; the path pose that
+    150 noisy points of the box at 30° of the turn fit best (``path_keys``) is found within 1°; a pose on the path is
+    0 from it, one turned 20° off the path (about the vertical of the body) is far (``path_offset``)."""
+    from scipy.spatial import cKDTree
+
+    from service.tracking.resettle import leading_pivot, path_keys, path_offset, tip_path
+
+    table = 0.0
+    X_r = make_X(np.eye(3), np.array([0.4, 0.1, table + SIZE[2] / 2]))
+    slid = settled_truth(X_r, table)
+    slid[1, 3] += 0.01
+    Q, Nq = box_faces()
+    B = base_points(Q, X_r, table, inset=0.0)
+    pivot = leading_pivot(B @ X_r[:3, :3].T + X_r[:3, 3], np.array([0.0, 1.0, 0.0]), table)
+    assert np.allclose(pivot, [0.4, 0.1 + SIZE[1] / 2, table], atol=0.004)
+    path = tip_path(X_r, slid, pivot)
+    assert pose_distance(path(0.0), X_r)[0] < 1e-9 and pose_distance(path(1.0), slid)[0] < 1e-9
+    R = so3_exp(np.array([-1.0, 0.0, 0.0]) * np.pi / 4)
+    mid = make_X(R, pivot + R @ (X_r[:3, 3] - pivot) + np.array([0.0, 0.005, 0.0]))
+    assert pose_distance(path(0.5), mid)[0] < 0.003 and pose_distance(path(0.5), mid)[1] < 0.5
+    poses = [path(k / 90) for k in range(91)]
+    rng = np.random.default_rng(5)
+    sel = rng.choice(len(Q), 150, replace=False)
+    P_W = Q[sel] @ poses[30][:3, :3].T + poses[30][:3, 3] + rng.normal(0, 0.001, (150, 3))
+    keys = path_keys(P_W, poses, cKDTree(Q), 0.008)
+    assert abs(max(range(len(poses)), key=lambda k: keys[k]) - 30) <= 1
+    assert path_offset(poses[40], poses, 500.0) == 0.0
+    off = poses[30] @ make_X(so3_exp(np.array([0.0, 0.0, np.radians(20.0)])), np.zeros(3))
+    assert path_offset(off, poses, 500.0) > 15.0
+
+
+def test_fall_frame_fits_decided_by_the_tipping_path():
+    """Among registrations of a fall frame that fit equally (a face turning within its own plane), the one on the
+    tipping path wins (``tracker._on_path``); one that fits better by more than ``resettle_tip_tol`` wins even off
+    the path; ``resettle_tip_tol`` 0 is off and the setting is validated."""
+    import pytest
+
+    from service.tracking.geometry import IcpResult
+    from service.tracking.resettle import tip_path
+    from service.tracking.tracker import _on_path
+    from service.tracking.types import TrackingConfig
+
+    X_r = make_X(np.eye(3), np.array([0.4, 0.1, SIZE[2] / 2]))
+    path = tip_path(X_r, settled_truth(X_r, 0.0), np.array([0.4, 0.1 + SIZE[1] / 2, 0.0]))
+    poses = [path(k / 90) for k in range(91)]
+    on = poses[50]
+    off = poses[50] @ make_X(so3_exp(np.array([0.0, 0.0, np.radians(12.0)])), np.zeros(3))
+
+    def fit(X: np.ndarray, frac: float, rmse: float) -> IcpResult:
+        return IcpResult(X, frac, rmse, 100, np.zeros(100))
+
+    cfg = TrackingConfig()
+    assert cfg.resettle_tip_tol > 0
+    best = _on_path([fit(off, 1.0, 0.00100), fit(on, 1.0, 0.00105)], poses, cfg)  # off fits by 0.001 better
+    assert best.X_WO is on
+    best = _on_path([fit(off, 1.0, 0.0010), fit(on, 0.9, 0.0012)], poses, cfg)  # off better by 0.104
+    assert best.X_WO is off
+    with pytest.raises(ValueError, match="resettle_tip_tol"):
+        TrackingConfig(resettle_tip_tol=-0.01)
+    with pytest.raises(ValueError, match="resettle_tip_m_deg"):
+        TrackingConfig(resettle_tip_m_deg=float("inf"))
