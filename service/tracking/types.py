@@ -275,13 +275,15 @@ class TrackingConfig:
     # over the session, a frame's spin is voted against this many older anchors whose corrected poses are turned
     # least from its own (the same view of the body: the view-dependent bias of the votes, keypoints that shift with
     # the view and depth noise turned into azimuth, is alike at both ends and cancels); 0: off (docs/tracking.md
-    # "Anchors from the nearest views"; off: with 4, evaluation 711 worst 6.26 -> 5.48 deg but 704 median 1.44 -> 2.45)
+    # "Anchors from the nearest views"; off: with 4, evaluation 711 worst 6.26 -> 5.48 deg but 704 median 1.44 -> 2.45,
+    # 2.42 with spin_view_upright_deg below)
     spin_view_anchors: int = 0
     # ... and only while the body is upright: a frame whose symmetry axis is more than this from the vertical of W
     # (lying after a topple, rolling) takes no view anchors, and only upright anchors are candidates. A lying body of
     # revolution changes its view by rolling about that axis, i.e. by the very spin the chain estimates, so its
     # "nearest views" are the frames whose estimated spin is nearest (the roll's own preceding frames), not an earlier
-    # measurement of the same view (docs/tracking.md "View anchors only while upright"); 90: every frame
+    # measurement of the same view (docs/tracking.md "View anchors only while upright": development topple 1023 median
+    # 2.55 -> 1.82 deg with 4 anchors, off 1.85; pivots unchanged); 90: every frame
     spin_view_upright_deg: float = 45.0
     # a body of revolution does not turn about its own axis while it topples (service.tracking.fall: no force on it
     # has a moment about the axis): over a topple of the tracked poses (the axis' angle from the vertical changing by
