@@ -98,7 +98,8 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
               sep: float = 0.5, profile: str = "off", max_deg: float = 0.0, gate_deg: float = 10.0, n_short: int = 2,
               rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4, fast_rate_deg: float = 2.0,
               fast_dilate: int = 4, fast_votes: int = 60, fall_rate_deg: float = 0.4, fall_min_deg: float = 45.0,
-              fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0, lit: LitTest | None = None, n_view: int = 0
+              fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0, lit: LitTest | None = None, n_view: int = 0,
+              view_upright_deg: float = 90.0
 
               ) -> tuple[SpinResult, np.ndarray]:
     """(spin correction, (N,) bool frames that took the no-twist increments) for the poses X_WO (N,4,4) of a body of
@@ -121,14 +122,16 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
                       graph_votes=graph_votes, smooth=smooth, match=match_once, sep=sep, profile=profile,
                       max_deg=max_deg, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg, long_votes=long_votes,
                       fast_span=fast_span, fast_rate_deg=fast_rate_deg, fast_dilate=fast_dilate,
-                      fast_votes=fast_votes, parts=parts, lit=lit, n_view=n_view)
+                      fast_votes=fast_votes, parts=parts, lit=lit, n_view=n_view,
+                      view_upright_deg=view_upright_deg)
     none = np.zeros(n, bool)
     if not base.is_revolution or base.rejected:
         return base, none
     axis = parts["axis"]  # the axis spin_mixed fitted (the multi-start profile fit is the costly part)
     _, _, a, c = axis
     kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match_once,
-              sep=sep, profile=profile, max_deg=max_deg, axis=axis, lit=lit, n_view=n_view)
+              sep=sep, profile=profile, max_deg=max_deg, axis=axis, lit=lit, n_view=n_view,
+              view_upright_deg=view_upright_deg)
 
     fall = topple_frames(X_WO, a, rate_deg=fall_rate_deg, min_deg=fall_min_deg, edge_deg=fall_edge_deg)
     if not fall.any():

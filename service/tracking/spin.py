@@ -333,7 +333,8 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
                  *, tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
                  n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0, profile: str = "off",
                  max_deg: float = 0.0, axis: tuple | None = None, fast: np.ndarray | None = None,
-                 theta_fast: np.ndarray | None = None, lit: LitTest | None = None, n_view: int = 0) -> SpinResult:
+                 theta_fast: np.ndarray | None = None, lit: LitTest | None = None, n_view: int = 0,
+                 view_upright_deg: float = 90.0) -> SpinResult:
     """Spin correction θ (N,) of the poses X_WO (N,4,4) of a body of revolution (module docstring) from each
     frame's interior features ``feats[i] = (points (F,3) in W, descriptors (F,32) or None)``
     (``interior_features``); X_WO is not changed (apply with ``apply_spin``). Q (M,3), N (M,3): the final model
@@ -345,7 +346,9 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     (else every vote counts: a body that slid, too few features).
     ``n_view`` > 0: each frame is also voted against that many older anchors (not of fast
     stretches) whose corrected poses are turned least from its own, predicted with the previous correction
-    (``_nearest_views``; comment below)."""
+    (``_nearest_views``; comment below), only while the body is upright: a frame whose axis is more than
+    ``view_upright_deg`` from the vertical of W gets none, and only upright anchors are candidates (``_upright``;
+    90: every frame)."""
     n = len(X_WO)
     is_rev, lam, a, c = axis if axis is not None else find_axis(Q, N, tau, sep, profile)
     theta = np.zeros(n)
@@ -358,6 +361,7 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     half = np.radians(inlier_deg)
     fixed = np.zeros(n, bool)  # frames of fast stretches (spin_mixed)
     entry = None  # the anchor before the current fast stretch
+    upright = _upright(X_WO, a, view_upright_deg) if n_view > 0 else None  # the frames that may take view anchors
     for i in range(1, n):
         if fast is not None and fast[i]:
             entry = anchors[-1] if entry is None else entry
@@ -374,8 +378,8 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
         spread = [older[k] for k in np.unique(np.linspace(0, len(older) - 1, n_spread).astype(int))] if older else []
         cand = sorted(set([0] + spread + anchors[-n_recent:]))
         prev = anchors[-1]
-        if n_view > 0:  # older anchors of the nearest views, among those the texture measured (not increments)
-            voted = [j for j in older if not fixed[j]]
+        if n_view > 0 and upright[i]:  # older anchors of the nearest views, among the upright ones the texture
+            voted = [j for j in older if not fixed[j] and upright[j]]  # measured (not increments)
             if voted:
                 cand = sorted(set(cand + _nearest_views(Xc, voted, X_WO[i] @ spin_matrix(a, c, theta[prev]),
                                                         n_view)))
@@ -426,6 +430,12 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
 # error, so its vote against an anchor of that view has the same bias at both ends, which cancels. So each frame is
 # also voted against the older anchors whose corrected rotation is nearest to its own (predicted with the previous
 # frame's correction): they tie the frame to an earlier measurement of the same view instead of a chain of views.
+
+def _upright(X_WO: np.ndarray, a: np.ndarray, max_deg: float) -> np.ndarray:
+    """(N,) bool: the frames of X_WO (N,4,4) whose axis a (3,) (unit, in O) is within ``max_deg`` of the vertical of
+    W, either way up (a turn about a does not move the axis, so the corrected poses give the same answer)."""
+    return np.abs(np.einsum("nij,j->ni", X_WO[:, :3, :3], a)[:, 2]) >= np.cos(np.radians(max_deg)) - 1e-12
+
 
 def _nearest_views(Xc: np.ndarray, frames: list[int], X: np.ndarray, k: int) -> list[int]:
     """The k of ``frames`` (ascending) whose corrected poses Xc[j] (4,4) are turned least from the pose X (4,4)
@@ -607,7 +617,8 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
                sep: float = 0.5, profile: str = "off", max_deg: float = 0.0, gate_deg: float = 10.0,
                n_short: int = 2, rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4,
                fast_rate_deg: float = 2.0, fast_dilate: int = 4, fast_votes: int = 60,
-               parts: dict | None = None, lit: LitTest | None = None, n_view: int = 0) -> SpinResult:
+               parts: dict | None = None, lit: LitTest | None = None, n_view: int = 0,
+               view_upright_deg: float = 90.0) -> SpinResult:
     """Spin correction like ``spin_closure`` (same axis, cap, result): the chain, with the fast frames where it pooled
     fewer than ``fast_votes`` votes (``fast_frames``; widened) taking the increments of the pose graph
     (``spin_links``, ``solve_spin_graph``; comment above). ``parts``: a dict that receives the intermediate results
@@ -625,7 +636,8 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
         return memo[key]
 
     kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match_once,
-              sep=sep, profile=profile, max_deg=max_deg, axis=axis, lit=lit, n_view=n_view)
+              sep=sep, profile=profile, max_deg=max_deg, axis=axis, lit=lit, n_view=n_view,
+              view_upright_deg=view_upright_deg)
     fast = fast_frames(X_WO, fast_span, fast_rate_deg, fast_dilate)
     _, _, a, c = axis
     if not axis[0] or not fast[1:].any():

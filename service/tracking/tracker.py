@@ -852,7 +852,7 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
     common = dict(tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
                   smooth=1 if cfg.spin_twist_smooth > 1 else cfg.spin_smooth,  # twist filtered instead (below)
                   match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg,
-                  n_view=cfg.spin_view_anchors)
+                  n_view=cfg.spin_view_anchors, view_upright_deg=cfg.spin_view_upright_deg)
     common["tau"] = _spin_tau(model, cfg)
     if cfg.spin_lit_frac > 0:  # the light's features on a rolling body dropped from the votes (spin.lit_matches)
         from service.tracking.spin import LitTest

@@ -285,8 +285,16 @@ class TrackingConfig:
     # over the session, a frame's spin is voted against this many older anchors whose corrected poses are turned
     # least from its own (the same view of the body: the view-dependent bias of the votes, keypoints that shift with
     # the view and depth noise turned into azimuth, is alike at both ends and cancels); 0: off (docs/tracking.md
-    # "Anchors from the nearest views"; off: with 4, evaluation 711 worst 6.26 -> 5.48 deg but 704 median 1.44 -> 2.45)
+    # "Anchors from the nearest views"; off: with 4, evaluation 711 worst 6.26 -> 5.48 deg but 704 median 1.44 -> 2.45,
+    # 2.42 with spin_view_upright_deg below)
     spin_view_anchors: int = 0
+    # ... and only while the body is upright: a frame whose symmetry axis is more than this from the vertical of W
+    # (lying after a topple, rolling) takes no view anchors, and only upright anchors are candidates. A lying body of
+    # revolution changes its view by rolling about that axis, i.e. by the very spin the chain estimates, so its
+    # "nearest views" are the frames whose estimated spin is nearest (the roll's own preceding frames), not an earlier
+    # measurement of the same view (docs/tracking.md "View anchors only while upright": development topple 1023 median
+    # 2.55 -> 1.82 deg with 4 anchors, off 1.85; pivots unchanged); 90: every frame
+    spin_view_upright_deg: float = 45.0
     # a body of revolution does not turn about its own axis while it topples (service.tracking.fall: no force on it
     # has a moment about the axis): over a topple of the tracked poses (the axis' angle from the vertical changing by
     # more than spin_fall_rate_deg per frame and by >= spin_fall_min_deg in all, trimmed by spin_fall_edge_deg at
@@ -437,6 +445,9 @@ class TrackingConfig:
         for name, hi in (("spin_lit_frac", 1.0), ("spin_lit_keep", 1.0), ("spin_lit_lie_deg", 90.0)):  # shares, an angle
             if not getattr(self, name) <= hi:
                 raise ValueError(f"TrackingConfig.{name} must be <= {hi:g}, not {getattr(self, name)!r}")
+        u = self.spin_view_upright_deg
+        if isinstance(u, bool) or not isinstance(u, (int, float)) or not 0 < u <= 90:
+            raise ValueError(f"TrackingConfig.spin_view_upright_deg must be in (0, 90], not {self.spin_view_upright_deg!r}")
         for name in ("sdf_band_px", "sdf_band_frames", "sdf_contradict_margin"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")

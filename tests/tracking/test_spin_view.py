@@ -3,14 +3,18 @@ constructed set of matches of a cylinder that tilts by 13° and back twice, wher
 different tilt in the second tilt are biased by one azimuth step (1.8°) and outnumber those of older anchors, the
 chain drifts through the second tilt and keeps the drift at rest; with the older anchors of the nearest view (the
 same tilt in the first cycle, the frames at rest before it), whose votes are unbiased, the spin stays within a few
-degrees and returns to the truth at rest. Off (0) leaves the chain as it was."""
+degrees and returns to the truth at rest. Off (0) leaves the chain as it was. Only upright frames take view anchors,
+and only upright anchors (``view_upright_deg``): the scene as built has the cylinder's axis 77–90° from the vertical of W
+(lying, tilted up and back), where the chain takes none; turned upright (axis vertical, tilted by 13° and back as in a
+pivot), every frame is upright and takes them."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from service.tracking.spin import _nearest_views, find_axis, spin_closure, spin_matrix
+from service.tracking import spin as spin_mod
+from service.tracking.spin import _nearest_views, _upright, find_axis, spin_closure, spin_matrix
 from service.tracking.types import TrackingConfig
 from service.transforms import make_X, so3_exp
 from tests.tracking.cylinder_feats import N_AZ, cylinder_features
@@ -22,13 +26,18 @@ SECOND = 50  # first frame of the second tilt
 TWIST_ERR = 3.0  # the tracker's constant spin error (°) after frame 0: the correction to find
 
 
-def _scene():
+def _scene(upright: bool = False):
+    """Model, tracked poses, true spin error and features. The cylinder's axis (x of O) lies along x of W at frame 0
+    and tilts up from the table by 13° and back; ``upright``: the whole scene turned by −90° about y of W (the axis
+    vertical at frame 0, tilted by 13° about a horizontal line; the same matches)."""
     Q, N = _cylinder_model()
     ok, _, a, c = find_axis(Q, N, 0.02, 0.5, "off")
     assert ok
     e1 = np.cross(a, [0.0, 0.0, 1.0])
     e1 /= np.linalg.norm(e1)
     X_trk = np.stack([make_X(so3_exp(e1 * np.radians(t)), np.array([0.5, 0.0, 0.1])) for t in PROFILE])
+    if upright:
+        X_trk = make_X(so3_exp(np.array([0.0, -np.pi / 2, 0.0])), np.zeros(3)) @ X_trk
     err = np.radians(np.full(len(PROFILE), TWIST_ERR))
     err[0] = 0.0
     X_true = np.stack([X @ spin_matrix(a, c, e) for X, e in zip(X_trk, err)])
@@ -97,3 +106,49 @@ def test_config_refuses_negative_view_anchors():
     assert TrackingConfig(spin_view_anchors=4).spin_view_anchors == 4
     with pytest.raises(ValueError, match="spin_view_anchors"):
         TrackingConfig(spin_view_anchors=-1)
+    for bad in (0.0, -5.0, 91.0, float("nan"), True, "45"):
+        with pytest.raises(ValueError, match="spin_view_upright_deg"):
+            TrackingConfig(spin_view_upright_deg=bad)
+
+
+def test_upright_frames():
+    a = np.array([0.0, 0.0, 1.0])
+    X = np.stack([make_X(so3_exp(np.array([np.radians(d), 0.0, 0.0])), np.zeros(3)) for d in (0.0, 13.0, 44.0, 46.0,
+                                                                                              88.0, 180.0)])
+    assert _upright(X, a, 45.0).tolist() == [True, True, True, False, False, True]  # either way up
+    assert _upright(X, a, 90.0).all()
+    assert _upright(X, a, 10.0).tolist() == [True, False, False, False, False, True]
+
+
+def test_view_anchors_only_while_upright(monkeypatch):
+    Q, N, X, err, feats = _scene(upright=True)
+    on = spin_closure(feats, X, Q, N, n_view=4, **KW)
+    same = spin_closure(feats, X, Q, N, n_view=4, view_upright_deg=45.0, **KW)  # tilts of 13°: every frame upright
+    assert np.array_equal(on.theta, same.theta) and np.array_equal(on.votes, same.votes)
+    e = _err_deg(same, err)  # the pivot's gain is kept
+    assert e.max() < 4.0 and e[SECOND + len(CYCLE):].max() < 0.5
+    assert _err_deg(spin_closure(feats, X, Q, N, **KW), err)[SECOND + len(CYCLE):].min() > 10.0
+    seen = []
+    orig = spin_mod._nearest_views
+
+    def spy(Xc, frames, Xp, k):
+        seen.append((Xp.copy(), [Xc[j].copy() for j in frames]))
+        return orig(Xc, frames, Xp, k)
+
+    monkeypatch.setattr(spin_mod, "_nearest_views", spy)
+    low = spin_closure(feats, X, Q, N, n_view=4, view_upright_deg=5.0, **KW)  # the tilted frames are not upright
+    a = on.axis_O
+    tilt = lambda Xk: np.degrees(np.arccos(min(1.0, abs((Xk[:3, :3] @ a)[2]))))
+    assert seen and all(tilt(Xp) <= 5.0 and all(tilt(Xj) <= 5.0 for Xj in cand) for Xp, cand in seen)
+    assert len(seen) < sum(tilt(Xk) <= 5.0 for Xk in X)  # fewer calls than frames: the tilts took none
+    assert not np.array_equal(low.theta, on.theta)
+
+
+def test_lying_body_takes_no_view_anchors():
+    Q, N, X, err, feats = _scene()
+    chain = spin_closure(feats, X, Q, N, **KW)
+    view = spin_closure(feats, X, Q, N, n_view=4, view_upright_deg=45.0, **KW)
+    assert chain.is_revolution and chain.observable
+    assert np.array_equal(chain.theta, view.theta) and np.array_equal(chain.votes, view.votes)
+    every = spin_closure(feats, X, Q, N, n_view=4, view_upright_deg=90.0, **KW)  # unrestricted: it changes the chain
+    assert not np.array_equal(chain.theta, every.theta)
