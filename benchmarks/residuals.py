@@ -95,7 +95,7 @@ def _config_json(text: str) -> dict:
     if unknown:
         raise argparse.ArgumentTypeError(f"not ResidualConfig fields: {', '.join(unknown)}")
     clash = sorted(set(cfg) & {"contact_breaking_m", "contact_erp", "contact_persist_m", "candidates", "folds", "unit_statistic",
-                               "lookalike_check", "max_train_segments", "fit_maxiter"})
+                               "lookalike_check", "lookalike_refute", "max_train_segments", "fit_maxiter"})
     if clash:
         raise argparse.ArgumentTypeError(f"set by the benchmark or its own flags, not by --config: {', '.join(clash)}")
     return cfg
@@ -107,6 +107,11 @@ def _path_settings(args) -> dict:
     given = {"sphere_drive": args.sphere_drive, "robot_smooth_weights": args.robot_smooth_weights,
              "robot_smooth_s": args.robot_smooth}
     return {k: v for k, v in given.items() if v is not None}
+
+
+def _refute_setting(args) -> dict:
+    """``ResidualConfig.lookalike_refute`` from ``--lookalike-refute on|off`` (absent: the config's default)."""
+    return {} if args.lookalike_refute is None else {"lookalike_refute": args.lookalike_refute == "on"}
 
 
 def _sim_settings(args) -> dict:
@@ -173,7 +178,7 @@ def real(args) -> None:
         seed=args.seed, candidates=tuple(args.candidates), max_train_segments=args.train_segments,
         max_heldout_segments=args.heldout_segments, fit_maxiter=args.fit_maxiter, max_effects=args.max_effects,
         unit_statistic=args.unit_statistic, folds=args.folds,
-        lookalike_check=args.lookalike_check, **_sim_settings(args),
+        lookalike_check=args.lookalike_check, **_refute_setting(args), **_sim_settings(args),
     )
     t0 = time.time()
     out = run(ResidualInputs(cube_model(), trajs, 0.0), cfg,
@@ -199,7 +204,7 @@ def synthetic(args) -> None:
     cands = ("gravity_scale", "restitution", "table_offset", "linear_damping", "angular_damping")
     # 12 training blocks and 24 evaluations per fit, as tests/residuals/test_recover_angular_damping.py
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, max_train_segments=12, fit_maxiter=24,
-                              unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check,
+                              unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check, **_refute_setting(args),
                               **_sim_settings(args), **args.config)
     import resource
 
@@ -259,7 +264,7 @@ def synthetic(args) -> None:
         tr, path = push_session(base, {"friction_object_table": 0.5}, seed=seed, noise_m=3e-4, strokes=12)
         pcfg = dataclasses.replace(ResidualConfig.fast(), candidates=("friction_table", "clock_offset", "restitution"),
                                    segment_s=0.5, seed=seed, unit_statistic=args.unit_statistic, folds=args.folds,
-                                   lookalike_check=args.lookalike_check, **_sim_settings(args))
+                                   lookalike_check=args.lookalike_check, **_refute_setting(args), **_sim_settings(args))
         out = run(ResidualInputs(base, (tr,), 0.0, robot=(path,)), pcfg)
         c = {c.effect: c for c in out.candidates}["friction_table"]
         print(f"pushing, hidden friction_object_table 0.5, seed {seed}: accepted {list(out.accepted)}; "
@@ -291,7 +296,7 @@ def lab(args) -> None:
     cands = ("clock_offset", "friction_table", "table_tilt", "linear_damping", "restitution")
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, max_train_segments=10,
                               nuisance=() if args.exact_model else NUISANCE_LEARNED, unit_statistic=args.unit_statistic,
-                              folds=args.folds, lookalike_check=args.lookalike_check, **_sim_settings(args))
+                              folds=args.folds, lookalike_check=args.lookalike_check, **_refute_setting(args), **_sim_settings(args))
     for case in args.cases:
         hidden, name, key = LAB_CASES[case]
         for seed in args.seeds:
@@ -426,7 +431,7 @@ def strike(args) -> None:
             cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, seed=seed,
                                       fit_maxiter=24, max_train_segments=10,
                                       nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
-                                      unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check, **_sim_settings(args),
+                                      unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check, **_refute_setting(args), **_sim_settings(args),
                                       **_path_settings(args))
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
@@ -574,6 +579,10 @@ def main() -> None:
         sp.add_argument("--lookalike-check", action="store_true",
                         help="rule 9 (docs/residuals.md §4): a passing candidate must beat each look-alike effect "
                              "fitted in the same round (table friction against linear damping) on held-out blocks")
+        sp.add_argument("--lookalike-refute", choices=("on", "off"), default=None,
+                        help="rule 9b (docs/residuals.md §4): a passing candidate is rejected when a look-alike fitted "
+                             "in the same round predicts the held-out position better (ResidualConfig.lookalike_refute; "
+                             "default: the config's)")
         sp.add_argument("--contact-breaking", default=None, metavar="M", type=off_or_float,
                         help="contact breaking threshold of the loop's simulator in m, or 'off' for Bullet's 0.02 m "
                              "(ResidualConfig.contact_breaking_m, docs/residuals.md §6); default: the config's default")
