@@ -369,6 +369,15 @@ def _print_fold_agreement(out) -> None:
         print(f"    {c.effect:16s} {state}: {fv}; agreement: {ag}", flush=True)
 
 
+def _print_lookalikes(out) -> None:
+    """Rules 9 and 9b (docs/residuals.md §4): every round's verdict between look-alikes (printed only when a rule ran)."""
+    for h in out.by_mode.get("rounds", []):
+        for p in (p.strip() for p in h.get("reason", "").split(";")):
+            if "look-alike" in p and ("rejected" in p or "not refuted" in p or "beats its" in p):
+                print(f"    round {h['round']} {h['effect']:16s} {p}", flush=True)
+                break
+
+
 def _true_split(ls, model, name, truth, cfg) -> str:
     """Block errors of the declared model and of the model with the hidden effect at its *true* value, on the
     effect's frames of every block (training and held-out) where it acts: how much the data can show the effect at
@@ -505,6 +514,7 @@ def strike(args) -> None:
             print(line, flush=True)
             if args.folds >= 2:
                 _print_fold_agreement(out)
+            _print_lookalikes(out)
     if args.true_split:
         return
     print(f"strike cases passing the issue #6 criteria (right effect alone, within 25 %, held-out error where it acts "
