@@ -95,7 +95,7 @@ def _config_json(text: str) -> dict:
     if unknown:
         raise argparse.ArgumentTypeError(f"not ResidualConfig fields: {', '.join(unknown)}")
     clash = sorted(set(cfg) & {"contact_breaking_m", "contact_erp", "contact_persist_m", "candidates", "folds", "unit_statistic",
-                               "lookalike_check", "max_train_segments", "fit_maxiter", "seed"})
+                               "lookalike_check", "lookalike_refute", "max_train_segments", "fit_maxiter", "seed"})
     if clash:
         raise argparse.ArgumentTypeError(f"set by the benchmark or its own flags, not by --config: {', '.join(clash)}")
     try:  # the config's own validation, so that a bad value is refused before any toss is made
@@ -111,6 +111,11 @@ def _path_settings(args) -> dict:
     given = {"sphere_drive": args.sphere_drive, "robot_smooth_weights": args.robot_smooth_weights,
              "robot_smooth_s": args.robot_smooth}
     return {k: v for k, v in given.items() if v is not None}
+
+
+def _refute_setting(args) -> dict:
+    """``ResidualConfig.lookalike_refute`` from ``--lookalike-refute on|off`` (absent: the config's default)."""
+    return {} if args.lookalike_refute is None else {"lookalike_refute": args.lookalike_refute == "on"}
 
 
 def _sim_settings(args) -> dict:
@@ -177,7 +182,7 @@ def real(args) -> None:
         seed=args.seed, candidates=tuple(args.candidates), max_train_segments=args.train_segments,
         max_heldout_segments=args.heldout_segments, fit_maxiter=args.fit_maxiter, max_effects=args.max_effects,
         unit_statistic=args.unit_statistic, folds=args.folds,
-        lookalike_check=args.lookalike_check, **_sim_settings(args),
+        lookalike_check=args.lookalike_check, **_refute_setting(args), **_sim_settings(args),
     )
     t0 = time.time()
     out = run(ResidualInputs(cube_model(), trajs, 0.0), cfg,
@@ -203,7 +208,7 @@ def synthetic(args) -> None:
     cands = ("gravity_scale", "restitution", "table_offset", "linear_damping", "angular_damping")
     # 12 training blocks and 24 evaluations per fit, as tests/residuals/test_recover_angular_damping.py
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, max_train_segments=12, fit_maxiter=24,
-                              unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check,
+                              unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check, **_refute_setting(args),
                               **_sim_settings(args), **args.config)
     import resource
 
@@ -263,7 +268,7 @@ def synthetic(args) -> None:
         tr, path = push_session(base, {"friction_object_table": 0.5}, seed=seed, noise_m=3e-4, strokes=12)
         pcfg = dataclasses.replace(ResidualConfig.fast(), candidates=("friction_table", "clock_offset", "restitution"),
                                    segment_s=0.5, seed=seed, unit_statistic=args.unit_statistic, folds=args.folds,
-                                   lookalike_check=args.lookalike_check, **_sim_settings(args))
+                                   lookalike_check=args.lookalike_check, **_refute_setting(args), **_sim_settings(args))
         out = run(ResidualInputs(base, (tr,), 0.0, robot=(path,)), pcfg)
         c = {c.effect: c for c in out.candidates}["friction_table"]
         print(f"pushing, hidden friction_object_table 0.5, seed {seed}: accepted {list(out.accepted)}; "
@@ -295,7 +300,7 @@ def lab(args) -> None:
     cands = ("clock_offset", "friction_table", "table_tilt", "linear_damping", "restitution")
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, max_train_segments=10,
                               nuisance=() if args.exact_model else NUISANCE_LEARNED, unit_statistic=args.unit_statistic,
-                              folds=args.folds, lookalike_check=args.lookalike_check, **_sim_settings(args))
+                              folds=args.folds, lookalike_check=args.lookalike_check, **_refute_setting(args), **_sim_settings(args))
     for case in args.cases:
         hidden, name, key = LAB_CASES[case]
         for seed in args.seeds:
@@ -368,6 +373,15 @@ def _print_fold_agreement(out) -> None:
         print(f"    {c.effect:16s} {state}: {fv}; agreement: {ag}", flush=True)
 
 
+def _print_lookalikes(out) -> None:
+    """Rules 9 and 9b (docs/residuals.md §4): every round's verdict between look-alikes (printed only when a rule ran)."""
+    for h in out.by_mode.get("rounds", []):
+        for p in (p.strip() for p in h.get("reason", "").split(";")):
+            if "look-alike" in p and ("rejected" in p or "not refuted" in p or "beats its" in p):
+                print(f"    round {h['round']} {h['effect']:16s} {p}", flush=True)
+                break
+
+
 def _true_split(ls, model, name, truth, cfg) -> str:
     """Block errors of the declared model and of the model with the hidden effect at its *true* value, on the
     effect's frames of every block (training and held-out) where it acts: how much the data can show the effect at
@@ -434,7 +448,7 @@ def strike(args) -> None:
             cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, seed=seed,
                                       fit_maxiter=24, max_train_segments=10,
                                       nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
-                                      unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check, **_sim_settings(args),
+                                      unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check, **_refute_setting(args), **_sim_settings(args),
                                       **_path_settings(args))
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
@@ -508,6 +522,7 @@ def strike(args) -> None:
             print(line, flush=True)
             if args.folds >= 2:
                 _print_fold_agreement(out)
+            _print_lookalikes(out)
     if args.true_split:
         return
     print(f"strike cases passing the issue #6 criteria (right effect alone, within 25 %, held-out error where it acts "
@@ -586,6 +601,10 @@ def main() -> None:
         sp.add_argument("--lookalike-check", action="store_true",
                         help="rule 9 (docs/residuals.md §4): a passing candidate must beat each look-alike effect "
                              "fitted in the same round (table friction against linear damping) on held-out blocks")
+        sp.add_argument("--lookalike-refute", choices=("on", "off"), default=None,
+                        help="rule 9b (docs/residuals.md §4): a passing candidate is rejected when a look-alike fitted "
+                             "in the same round predicts the held-out position better (ResidualConfig.lookalike_refute; "
+                             "default: the config's)")
         sp.add_argument("--contact-breaking", default=None, metavar="M", type=off_or_float,
                         help="contact breaking threshold of the loop's simulator in m, or 'off' for Bullet's 0.02 m "
                              "(ResidualConfig.contact_breaking_m, docs/residuals.md §6); default: the config's default")

@@ -191,6 +191,79 @@ def lookalike_rule(round_res: list[tuple], folds: list, cfg: ResidualConfig, fin
     return out
 
 
+def shared_component(a, b) -> str:
+    """The error component (``Effect.component``) two effects both act on: their common one, the narrower one when one
+    of them acts on "both" (friction "both", linear damping "position": the position), else "both"."""
+    if a.component == b.component:
+        return a.component
+    if a.component == "both":
+        return b.component
+    if b.component == "both":
+        return a.component
+    return "both"
+
+
+def _lookalike_blocks(per_a, per_b, folds: list, ea, eb, component: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Paired held-out block errors of two effects' fold models on every held-out block of every fold where either
+    acts: each block's mean over all its tracked frames of ``component``, (S,) for A, (S,) for B, and the units (S,)."""
+    from service.residuals.loop import _acts_on, reduce_blocks
+
+    e_a, e_b, u = [], [], []
+    for f, fd in enumerate(folds):
+        idx = [i for i, sg in enumerate(fd.held) if _acts_on(sg, ea) or _acts_on(sg, eb)]
+        e_a.append(reduce_blocks([per_a[f]["after_frames"][i] for i in idx], component=component))
+        e_b.append(reduce_blocks([per_b[f]["after_frames"][i] for i in idx], component=component))
+        u.append(fd.units[np.asarray(idx, int)])
+    e_a, e_b, u = np.concatenate(e_a), np.concatenate(e_b), np.concatenate(u)
+    keep = np.isfinite(e_a) & np.isfinite(e_b)
+    return e_a[keep], e_b[keep], u[keep]
+
+
+def lookalike_refutation(round_res: list[tuple], folds: list, cfg: ResidualConfig, final: dict, history: list,
+                         rnd: int) -> list[tuple]:
+    """Rule 9b (§4, ``ResidualConfig.lookalike_refute``): a candidate A that passes the earlier rules is rejected when
+    a look-alike B (``Effect.lookalikes``) fitted in the same round (passing or not) predicts the held-out blocks
+    better beyond noise on the error component both act on (``shared_component``; friction against damping: the
+    position |Δp|), over all the frames of the held-out blocks of every fold where A or B acts (a launch block's rest
+    frames hold where the slide stopped), B's fold models against A's (``loop.head_to_head``: rules 2 and 3 with A
+    in place of "before"). When neither is better beyond noise nothing changes (the greedy pick decides, as without
+    the rule). ``round_res`` entries are (passes, all-frame fall, candidate, per-fold figures, θ̄); the refuted
+    ones are returned with passes False, and their reasons in ``final`` and ``history`` say why."""
+    from service.residuals.loop import head_to_head
+
+    by_name = {r[2].effect: r for r in round_res}
+    rng = np.random.default_rng(cfg.seed + 9002)  # its own stream: the main loop's draws stay as they were
+    out = []
+    for r in round_res:
+        ok, gain, cand, per, theta_rep = r
+        if ok:
+            ea = REGISTRY[cand.effect]
+            for other in ea.lookalikes:
+                if other not in by_name:
+                    continue
+                eb = REGISTRY[other]
+                comp = shared_component(ea, eb)
+                e_a, e_b, u = _lookalike_blocks(per, by_name[other][3], folds, ea, eb, comp)
+                refuted, txt = head_to_head(e_a, e_b, u, cfg, rng) if len(e_a) >= 2 else (
+                    False, f"{len(e_a)} held-out block(s) to compare")
+                txt = f"{comp} error, {other} against it: {txt}"
+                if refuted:
+                    ok = False
+                    why = (f"rejected: its look-alike {other} predicts the held-out blocks better ({txt}); "
+                           + cand.reason.removeprefix("passes; "))
+                else:
+                    why = f"{cand.reason}; not refuted by its look-alike {other} ({txt})"
+                cand = dataclasses.replace(cand, reason=why)
+                final[cand.effect] = cand
+                for h in history:
+                    if h["round"] == rnd + 1 and h["effect"] == cand.effect:
+                        h.update(passes=ok, reason=why)
+                if not ok:
+                    break
+        out.append((ok, gain, cand, per, theta_rep))
+    return out
+
+
 def held_out_parts(segs: list, n_traj: int, cfg: ResidualConfig) -> tuple[list[tuple[list, list]], list[np.ndarray]]:
     """[(train_f, held_f)], [units_f] of the held-out test: with ``folds`` = 1 the one seeded split
     (``loop.split_segments``) as a single fold, else the K folds of ``fold_segments``."""
@@ -389,6 +462,8 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
             history.append(history_entry(rnd, cand, ok, **({"folds": per_fold} if kfold else {})))
         if cfg.lookalike_check:
             round_res = lookalike_rule(round_res, folds, cfg, final, history, rnd)
+        if cfg.lookalike_refute:
+            round_res = lookalike_refutation(round_res, folds, cfg, final, history, rnd)
         best = accept_best(round_res, final)
         if best is None:
             break

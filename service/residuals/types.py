@@ -215,6 +215,12 @@ class ResidualConfig:
     # linear damping) fitted in the same round, on all frames of the held-out blocks where either acts (rules 2 and
     # 3 on the paired errors of the two); off leaves every output as before
     lookalike_check: bool = False
+    # refutation by a look-alike (docs/residuals.md §4 rule 9b, §7 "Friction and damping told apart"): a candidate that
+    # passes rules 1-8 (and 9 if on) is rejected when one of its look-alikes fitted in the same round predicts the
+    # held-out blocks' *position* better beyond noise (rules 2 and 3 on the paired errors |Δp| of all frames of the
+    # blocks where either acts: the component both effects act on, the CoM's path through the slide and where it
+    # stopped); when neither is better the greedy pick decides as before. Off leaves every output as before
+    lookalike_refute: bool = False
 
     def __post_init__(self) -> None:
         self._check_numbers()
@@ -225,6 +231,8 @@ class ResidualConfig:
                              f"not {self.robot_smooth_weights!r}")
         if not isinstance(self.lookalike_check, bool):
             raise ValueError(f"ResidualConfig.lookalike_check must be a bool, not {self.lookalike_check!r}")
+        if not isinstance(self.lookalike_refute, bool):
+            raise ValueError(f"ResidualConfig.lookalike_refute must be a bool, not {self.lookalike_refute!r}")
         for name in ("max_base_error_rel_learned", "launch_speed", "launch_max_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ResidualConfig.{name} must be > 0, not {getattr(self, name)!r}")
