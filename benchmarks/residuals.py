@@ -129,6 +129,8 @@ def _sim_settings(args) -> dict:
                         ("contact_persist", "contact_persist_m")):
         v = getattr(args, flag, None)
         out[field] = getattr(ResidualConfig, field) if v is None else (None if v == "off" else v)
+    if getattr(args, "sphere_velocity_only", False):  # no push-out of the sphere's overlap (off by default)
+        out["sphere_velocity_only"] = True
     return out
 
 
@@ -429,10 +431,13 @@ def strike(args) -> None:
     from service.synth.types import HiddenEffects, SynthSpec
     from tests.residuals.synthlab import lab_session, perturbed_model
 
-    if args.lab_strike_contact == "bullet":  # the lab before: every sphere-object contact point solved as Bullet makes it
+    if args.lab_strike_contact != "touch":
         from service.synth import sim as lab_sim
 
-        lab_sim.STRIKE_CONTACT_PROCESSING_M = None
+        if args.lab_strike_contact == "bullet":  # the lab before: every sphere-object contact point as Bullet makes it
+            lab_sim.STRIKE_CONTACT_PROCESSING_M = None
+        else:  # 'velocity': no push-out of the overlap the contact starts with (docs/residuals.md §7, "The launch kick")
+            lab_sim.STRIKE_CONTACT_STIFFNESS_DAMPING = lab_sim.STRIKE_VELOCITY_ONLY
     n_ok = n = 0
     for case in args.cases:
         hidden, name, key, truth, cands = STRIKE_CASES[case]
@@ -583,10 +588,12 @@ def main() -> None:
                          "--robot-smooth 0.08")
     st.add_argument("--robot-smooth", type=float, default=None, metavar="S",
                     help="window of that fit in s (ResidualConfig.robot_smooth_s; default: the config's, 0.04)")
-    st.add_argument("--lab-strike-contact", choices=("touch", "bullet"), default="touch",
+    st.add_argument("--lab-strike-contact", choices=("touch", "velocity", "bullet"), default="touch",
                     help="the lab's sphere-object contact in its strike sessions: solved from the touch on (the lab's "
-                         "setting, service.synth.sim.STRIKE_CONTACT_PROCESSING_M) or every point as Bullet makes it "
-                         "('bullet': the lab before, which lost a third of its bounces; docs/residuals.md §7)")
+                         "setting, service.synth.sim.STRIKE_CONTACT_PROCESSING_M), also at the velocity level only "
+                         "('velocity': no push-out of the overlap, sim.STRIKE_VELOCITY_ONLY; off in the lab), or every "
+                         "point as Bullet makes it ('bullet': the lab before, which lost a third of its bounces; "
+                         "docs/residuals.md §7)")
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
     for sp in (r, s, lb, st):
@@ -611,6 +618,9 @@ def main() -> None:
         sp.add_argument("--contact-erp", default=None, metavar="F", type=off_or_float,
                         help="fraction of a contact's penetration the loop's simulator pushes out per sub-step, or 'off' "
                              "for Bullet's default (ResidualConfig.contact_erp, docs/residuals.md §6)")
+        sp.add_argument("--sphere-velocity-only", action="store_true",
+                        help="the robot sphere's contact solved at the velocity level only (ResidualConfig."
+                             "sphere_velocity_only, off by default; docs/residuals.md §7 'The launch kick')")
         sp.add_argument("--contact-persist", default=None, metavar="M", type=off_or_float,
                         help="threshold of the object-table manifold re-made at the first touch in m, or 'off' "
                              "(ResidualConfig.contact_persist_m, docs/residuals.md §7 'Resting contact ...')")

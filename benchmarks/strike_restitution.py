@@ -3,9 +3,9 @@ for diagnosis only, never part of the service.
 
     python benchmarks/strike_restitution.py phases [--speeds 0.35 0.45 0.6] [--phases 12]
     python benchmarks/strike_restitution.py blocks --seeds 666 667 [--pose-noise 0] [--contact-breaking off 0.001]
-        [--contact-erp 0.05] [--lab-strike-contact touch|bullet]
+        [--contact-erp 0.05] [--lab-strike-contact touch|velocity|bullet]
     python benchmarks/strike_restitution.py lab [--speeds 0.4 0.55 0.7] [--phases 12] [--restitutions 0.1 0.3 0.5]
-        [--sphere-contact bullet touch] [--breaking off 0.005 0.002 0.001] [--mu 0] [--height-frac F]
+        [--sphere-contact bullet touch velocity] [--breaking off 0.005 0.002 0.001] [--mu 0] [--height-frac F]
     python benchmarks/strike_restitution.py lab-rest
 
 ``phases``: a 10 kg sphere strikes a resting 0.3 kg box (9.5 x 6.5 x 12.5 cm) through its CoM on a frictionless table;
@@ -19,8 +19,10 @@ contact breaking 0.02 m, a free sphere moving at the strike speed).
 ``lab``: the same strike in the synthetic lab's own world (``tests/synth/strike_lab.py``: ``service.synth.sim``'s engine
 settings, table, object, sphere, impedance law and strike command; 240 Hz): the launch / approach speed with e = 0 and
 the launch with e over the one with e = 0 per contact phase, with the sphere-object contact solved from the touch on
-(``touch``: ``sim.STRIKE_CONTACT_PROCESSING_M``, the lab's setting) or as Bullet makes it (``bullet``: every contact
-point solved, the lab before), each with Bullet's contact breaking threshold for the whole world as given
+(``touch``: ``sim.STRIKE_CONTACT_PROCESSING_M``, the lab's setting), from the touch on at the velocity level only
+(``velocity``: also ``sim.STRIKE_VELOCITY_ONLY``, no push-out of the overlap the contact starts with; off in the lab,
+docs/residuals.md §7 "The launch kick") or as Bullet makes it (``bullet``: every contact point solved, the lab before),
+each with Bullet's contact breaking threshold for the whole world as given
 (``--breaking``: a factor of each shape's bounding radius; ``off`` = Bullet's 0.02, the lab's). ``--height-frac`` strikes at that fraction of the box's height (the lab: 0.3) instead
 of through the CoM.
 
@@ -135,9 +137,11 @@ def lab(args) -> None:
     height = None if args.height_frac is None else args.height_frac * 0.125
     m_ratio = sim.STRIKE_EE_MASS / (sim.STRIKE_EE_MASS + 0.3)
     saved = sim.STRIKE_CONTACT_PROCESSING_M
+    saved_law = sim.STRIKE_CONTACT_STIFFNESS_DAMPING
     try:
         for setting, brk in [(s_, b_) for s_ in args.sphere_contact for b_ in args.breaking]:
             sim.STRIKE_CONTACT_PROCESSING_M = None if setting == "bullet" else saved
+            sim.STRIKE_CONTACT_STIFFNESS_DAMPING = sim.STRIKE_VELOCITY_ONLY if setting == "velocity" else None
             cb = None if brk == "off" else float(brk)
             for v in args.speeds:
                 r0 = np.array([lab_strike(v, 0.0, ph, mu=args.mu, height=height, breaking=cb) for ph in phases])
@@ -154,6 +158,7 @@ def lab(args) -> None:
                 print(line, flush=True)
     finally:
         sim.STRIKE_CONTACT_PROCESSING_M = saved
+        sim.STRIKE_CONTACT_STIFFNESS_DAMPING = saved_law
 
 
 def _lab_rest(breaking: float | None, margin: float, tilt: float) -> tuple:
@@ -244,10 +249,13 @@ def blocks(args) -> None:
     from tests.residuals.synthlab import lab_session, perturbed_model
 
     grid = np.array([0.0, 0.1, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5])
-    if args.lab_strike_contact == "bullet":  # the lab before (docs/residuals.md §7, "The synthetic lab's strikes")
+    if args.lab_strike_contact != "touch":  # docs/residuals.md §7, "The synthetic lab's strikes", "The launch kick"
         from service.synth import sim as lab_sim
 
-        lab_sim.STRIKE_CONTACT_PROCESSING_M = None
+        if args.lab_strike_contact == "bullet":
+            lab_sim.STRIKE_CONTACT_PROCESSING_M = None
+        else:
+            lab_sim.STRIKE_CONTACT_STIFFNESS_DAMPING = lab_sim.STRIKE_VELOCITY_ONLY
     for seed in args.seeds:
         ls = lab_session(SynthSpec(object="baking_box", interaction="strike", seed=seed, preset="tiny", n_frames=900,
                                    friction_object_table=0.15, effects=HiddenEffects(restitution=E_TRUE)),
@@ -290,13 +298,16 @@ def main() -> None:
     bl.add_argument("--pose-noise", type=float, default=0.0)
     bl.add_argument("--contact-breaking", nargs="+", default=["off", "0.001"])
     bl.add_argument("--contact-erp", default="off", help="contact erp with a contact breaking threshold set ('off': Bullet's)")
-    bl.add_argument("--lab-strike-contact", choices=("touch", "bullet"), default="touch",
-                    help="the lab's sphere-object contact: from the touch on (the lab's setting) or as Bullet makes it")
+    bl.add_argument("--lab-strike-contact", choices=("touch", "velocity", "bullet"), default="touch",
+                    help="the lab's sphere-object contact: from the touch on (the lab's setting), from the touch on at "
+                         "the velocity level only (no push-out of the overlap), or as Bullet makes it")
     lb = sub.add_parser("lab")
     lb.add_argument("--speeds", type=float, nargs="+", default=[0.4, 0.55, 0.7], help="commanded strike speeds, m/s")
     lb.add_argument("--phases", type=int, default=12)
     lb.add_argument("--restitutions", type=float, nargs="+", default=[0.1, 0.3, 0.5])
-    lb.add_argument("--sphere-contact", nargs="+", choices=("bullet", "touch"), default=["bullet", "touch"])
+    lb.add_argument("--sphere-contact", nargs="+", choices=("bullet", "touch", "velocity"), default=["bullet", "touch"],
+                    help="bullet: every point as Bullet makes it; touch: from the touch on, the overlap pushed out "
+                         "through the velocity (the lab's); velocity: from the touch on, velocity level only")
     lb.add_argument("--breaking", nargs="+", default=["off"], help="Bullet's contact breaking threshold(s) for the whole "
                     "world (a factor of each shape's bounding radius), or 'off' for Bullet's 0.02")
     lb.add_argument("--mu", type=float, default=0.0, help="table friction")

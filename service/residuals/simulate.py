@@ -98,11 +98,21 @@ def _frictions(model: ObjectModel, eff: dict[str, float]) -> tuple[float, float]
     return mu_t, mu_r
 
 
+# (stiffness N/m, damping N s/m) of Bullet's per-body contact law that makes a body's contacts velocity-only: the pair's
+# erp h k / (h k + d) is 0 (an overlap is left, not pushed out through the velocity) and its cfm 1 / (h (h k + d)) is
+# 5e-4 /kg at 2 ms, negligible against the sphere-object pair's inverse effective mass (> 1 /kg for objects < 1 kg).
+# Off by default (``ResidualConfig.sphere_velocity_only``): a sustained push's overlap is then never corrected.
+# Bullet's split impulse (position-only push-out) would be the usual remedy, but its multibody solver, which pybullet's
+# bodies use, does not implement it (measured: no effect, bit for bit).
+SPHERE_VELOCITY_ONLY_STIFFNESS_DAMPING = (0.0, 1.0e6)
+
+
 class BulletSimulator:
     """Callable ``SimRequest -> (T,4,4)`` rollouts; owns one pybullet DIRECT client (call ``close``)."""
 
     def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0, contact_breaking_m: float | None = None,
-                 contact_erp: float | None = None, sphere_drive: str = "lead", contact_persist_m: float | None = None):
+                 contact_erp: float | None = None, sphere_drive: str = "lead", contact_persist_m: float | None = None,
+                 sphere_velocity_only: bool = False):
         import pybullet
 
         if contact_breaking_m is not None and not contact_breaking_m > 0:
@@ -127,6 +137,10 @@ class BulletSimulator:
         # erp d / h adds speed to a struck object when its contact starts inside it (``contact_breaking_m``)
         self._contact_kw = {} if contact_erp is None else {"contactERP": float(contact_erp)}
         self.sphere_drive = sphere_drive
+        # the sphere-object contact solved at the velocity level only (no push-out of its overlap; False: Bullet's,
+        # the world's erp): a strike's contact starts inside the object by up to v h, and pushing that out at
+        # erp d / h launches the object up to 6 % faster than the sphere (docs/residuals.md §7, "The launch kick")
+        self.sphere_velocity_only = bool(sphere_velocity_only)
         self._hulls: dict = {}
 
     def _hull_vertices(self, model: ObjectModel) -> np.ndarray:
@@ -263,6 +277,9 @@ class BulletSimulator:
             sphere = p.createMultiBody(10.0, sshape, basePosition=ee_path[0].tolist(), physicsClientId=cid)
             p.changeDynamics(sphere, -1, lateralFriction=mu_r, restitution=1.0, linearDamping=0.0,
                              angularDamping=0.0, physicsClientId=cid)
+            if self.sphere_velocity_only:
+                k, d = SPHERE_VELOCITY_ONLY_STIFFNESS_DAMPING
+                p.changeDynamics(sphere, -1, contactStiffness=k, contactDamping=d, physicsClientId=cid)
             p.setCollisionFilterPair(sphere, table, -1, -1, 0, physicsClientId=cid)
             cons = p.createConstraint(sphere, -1, -1, -1, p.JOINT_FIXED, [0, 0, 0], [0, 0, 0],
                                       ee_path[0].tolist(), physicsClientId=cid)
@@ -298,19 +315,20 @@ class BulletSimulator:
 
 def make_simulator(sim_substep_s: float = 0.002, contact_breaking_m: float | None = None,
                    contact_erp: float | None = None, sphere_drive: str = "lead",
-                   contact_persist_m: float | None = None) -> BulletSimulator:
+                   contact_persist_m: float | None = None, sphere_velocity_only: bool = False) -> BulletSimulator:
     """The built-in simulator used when the caller injects none (``ResidualConfig.sim_substep_s``,
-    ``contact_breaking_m``, ``contact_erp``, ``sphere_drive`` and ``contact_persist_m``)."""
+    ``contact_breaking_m``, ``contact_erp``, ``sphere_drive``, ``contact_persist_m`` and ``sphere_velocity_only``)."""
     return BulletSimulator(sim_substep_s, contact_breaking_m=contact_breaking_m, contact_erp=contact_erp,
-                           sphere_drive=sphere_drive, contact_persist_m=contact_persist_m)
+                           sphere_drive=sphere_drive, contact_persist_m=contact_persist_m,
+                           sphere_velocity_only=sphere_velocity_only)
 
 
 def simulator_for(cfg) -> BulletSimulator:
     """The loop's built-in simulator for the settings ``cfg`` (a ``ResidualConfig``): its sub-step, contact breaking
-    threshold, contact erp, sphere drive and contact persistence. ``run`` uses it when the caller injects no simulator;
+    threshold, contact erp, sphere drive, contact persistence and velocity-only sphere contact. ``run`` uses it when the caller injects no simulator;
     diagnosis scripts replay with it so that their rollouts are the loop's."""
     return make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp, cfg.sphere_drive,
-                          cfg.contact_persist_m)
+                          cfg.contact_persist_m, cfg.sphere_velocity_only)
 
 
 def service_sim_simulator(sim_cfg=None):

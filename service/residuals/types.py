@@ -158,6 +158,12 @@ class ResidualConfig:
     # at contact_breaking_m = 1 mm a sliding body's points are dropped after 1 mm of travel along the table and it
     # holds about one point (docs/residuals.md §7, "Resting contact at the contact breaking threshold")
     contact_persist_m: float | None = None
+    # the robot sphere's contact with the object solved at the velocity level only (False = off, the default: Bullet's
+    # push-out). A strike's contact starts inside the object by up to v h (1 mm at 0.5 m/s, 2 ms) and Bullet pushes
+    # that out at erp d / h, launching the object up to 6 % faster than the sphere (velocity-only: 1.0002 v); but a
+    # sustained push then drifts into the object uncorrected, and the lab's push sessions lost their clock offset
+    # (docs/residuals.md §7, "The launch kick")
+    sphere_velocity_only: bool = False
     contact_tol_m: float = 0.004  # gap below which the table counts as touching (mode classifier)
     rest_speed: float = 0.03  # m/s, below this (and touching) the object is at rest
     impact_dv: float = 0.3  # m/s, a velocity jump above this in one step while touching = impact
@@ -253,6 +259,8 @@ class ResidualConfig:
         if self.contact_persist_m is not None and self.contact_breaking_m is None:
             raise ValueError("ResidualConfig.contact_persist_m needs contact_breaking_m (the manifold is re-made at "
                              "Bullet's threshold only when the loop uses its own): set both or neither")
+        if not isinstance(self.sphere_velocity_only, bool):
+            raise ValueError(f"ResidualConfig.sphere_velocity_only must be a bool, not {self.sphere_velocity_only!r}")
         if self.contact_erp is not None and not 0.0 <= self.contact_erp <= 1.0:
             raise ValueError(f"ResidualConfig.contact_erp must be in [0, 1] or None, not {self.contact_erp!r}")
         if not (isinstance(self.folds, int) and self.folds >= 1):

@@ -63,6 +63,21 @@ def test_softer_push_out_slows_the_inelastic_launch():
     assert over_soft.max() < over_hard.max()
 
 
+def test_velocity_only_sphere_contact_launches_at_the_spheres_speed():
+    """Solved at the velocity level only (``sphere_velocity_only``, off by default) the contact adds no push-out of the
+    overlap it starts with: the e = 0 launch is v in every phase (measured 1.0002 v; with Bullet's push-out
+    1.001-1.059 v) and e = 0.3 gives 1.3 x that (1.298-1.299)."""
+    assert not ResidualConfig().sphere_velocity_only
+    with BulletSimulator(0.002, contact_breaking_m=0.001, sphere_velocity_only=True) as sim, \
+            BulletSimulator(0.002, contact_breaking_m=0.001) as pushed:
+        v0 = np.array([_launch_speed(sim, 0.0, g) for g in GAPS])
+        v3 = np.array([_launch_speed(sim, 0.3, g) for g in GAPS])
+        kicked = np.array([_launch_speed(pushed, 0.0, g) for g in GAPS])
+    assert np.all(np.abs(v0 / V - 1.0) < 0.005), v0
+    assert np.all(np.abs(v3 / v0 - 1.3) < 0.01), v3 / v0
+    assert kicked.max() > 1.03 * V, kicked
+
+
 def test_contact_breaking_is_put_back_after_each_rollout():
     """Bullet's threshold is a process-wide global: a simulator with its own value leaves other worlds as they were."""
     gap = 0.0312
@@ -80,3 +95,5 @@ def test_contact_breaking_validated():
         BulletSimulator(0.002, contact_breaking_m=-1.0)
     with pytest.raises(ValueError, match="contact_erp"):
         ResidualConfig(contact_erp=1.5)
+    with pytest.raises(ValueError, match="sphere_velocity_only"):
+        ResidualConfig(sphere_velocity_only=1)
