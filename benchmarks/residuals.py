@@ -431,12 +431,11 @@ def strike(args) -> None:
     from service.synth.types import HiddenEffects, SynthSpec
     from tests.residuals.synthlab import lab_session, perturbed_model
 
-    if args.lab_strike_contact != "touch":
+    if args.lab_strike_contact != "bullet":  # the lab's default: every sphere-object contact point as Bullet makes it
         from service.synth import sim as lab_sim
 
-        if args.lab_strike_contact == "bullet":  # the lab before: every sphere-object contact point as Bullet makes it
-            lab_sim.STRIKE_CONTACT_PROCESSING_M = None
-        else:  # 'velocity': no push-out of the overlap the contact starts with (docs/residuals.md §7, "The launch kick")
+        lab_sim.STRIKE_CONTACT_PROCESSING_M = lab_sim.STRIKE_TOUCH_PROCESSING_M  # solved from the touch on
+        if args.lab_strike_contact == "velocity":  # and no push-out of its overlap (docs/residuals.md §7, "The launch kick")
             lab_sim.STRIKE_CONTACT_STIFFNESS_DAMPING = lab_sim.STRIKE_VELOCITY_ONLY
     n_ok = n = 0
     for case in args.cases:
@@ -588,12 +587,12 @@ def main() -> None:
                          "--robot-smooth 0.08")
     st.add_argument("--robot-smooth", type=float, default=None, metavar="S",
                     help="window of that fit in s (ResidualConfig.robot_smooth_s; default: the config's, 0.04)")
-    st.add_argument("--lab-strike-contact", choices=("touch", "velocity", "bullet"), default="touch",
-                    help="the lab's sphere-object contact in its strike sessions: solved from the touch on (the lab's "
-                         "setting, service.synth.sim.STRIKE_CONTACT_PROCESSING_M), also at the velocity level only "
-                         "('velocity': no push-out of the overlap, sim.STRIKE_VELOCITY_ONLY; off in the lab), or every "
-                         "point as Bullet makes it ('bullet': the lab before, which lost a third of its bounces; "
-                         "docs/residuals.md §7)")
+    st.add_argument("--lab-strike-contact", choices=("bullet", "touch", "velocity"), default="bullet",
+                    help="the lab's sphere-object contact in its strike sessions: every point as Bullet makes it "
+                         "('bullet', the lab's default, which loses about a third of its bounces), solved from the touch "
+                         "on ('touch': service.synth.sim.STRIKE_TOUCH_PROCESSING_M; the bounces kept, launches up to 7 "
+                         "%% fast), or also at the velocity level only ('velocity': no push-out of the overlap, "
+                         "sim.STRIKE_VELOCITY_ONLY); docs/residuals.md §7")
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
     for sp in (r, s, lb, st):

@@ -19,9 +19,9 @@ contact breaking 0.02 m, a free sphere moving at the strike speed).
 ``lab``: the same strike in the synthetic lab's own world (``tests/synth/strike_lab.py``: ``service.synth.sim``'s engine
 settings, table, object, sphere, impedance law and strike command; 240 Hz): the launch / approach speed with e = 0 and
 the launch with e over the one with e = 0 per contact phase, with the sphere-object contact solved from the touch on
-(``touch``: ``sim.STRIKE_CONTACT_PROCESSING_M``, the lab's setting), from the touch on at the velocity level only
+(``touch``: ``sim.STRIKE_TOUCH_PROCESSING_M``; off in the lab), from the touch on at the velocity level only
 (``velocity``: also ``sim.STRIKE_VELOCITY_ONLY``, no push-out of the overlap the contact starts with; off in the lab,
-docs/residuals.md §7 "The launch kick") or as Bullet makes it (``bullet``: every contact point solved, the lab before),
+docs/residuals.md §7 "The launch kick") or as Bullet makes it (``bullet``: every contact point solved, the lab's default),
 each with Bullet's contact breaking threshold for the whole world as given
 (``--breaking``: a factor of each shape's bounding radius; ``off`` = Bullet's 0.02, the lab's). ``--height-frac`` strikes at that fraction of the box's height (the lab: 0.3) instead
 of through the CoM.
@@ -140,7 +140,7 @@ def lab(args) -> None:
     saved_law = sim.STRIKE_CONTACT_STIFFNESS_DAMPING
     try:
         for setting, brk in [(s_, b_) for s_ in args.sphere_contact for b_ in args.breaking]:
-            sim.STRIKE_CONTACT_PROCESSING_M = None if setting == "bullet" else saved
+            sim.STRIKE_CONTACT_PROCESSING_M = None if setting == "bullet" else sim.STRIKE_TOUCH_PROCESSING_M
             sim.STRIKE_CONTACT_STIFFNESS_DAMPING = sim.STRIKE_VELOCITY_ONLY if setting == "velocity" else None
             cb = None if brk == "off" else float(brk)
             for v in args.speeds:
@@ -249,12 +249,11 @@ def blocks(args) -> None:
     from tests.residuals.synthlab import lab_session, perturbed_model
 
     grid = np.array([0.0, 0.1, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5])
-    if args.lab_strike_contact != "touch":  # docs/residuals.md §7, "The synthetic lab's strikes", "The launch kick"
+    if args.lab_strike_contact != "bullet":  # docs/residuals.md §7, "The synthetic lab's strikes", "The launch kick"
         from service.synth import sim as lab_sim
 
-        if args.lab_strike_contact == "bullet":
-            lab_sim.STRIKE_CONTACT_PROCESSING_M = None
-        else:
+        lab_sim.STRIKE_CONTACT_PROCESSING_M = lab_sim.STRIKE_TOUCH_PROCESSING_M
+        if args.lab_strike_contact == "velocity":
             lab_sim.STRIKE_CONTACT_STIFFNESS_DAMPING = lab_sim.STRIKE_VELOCITY_ONLY
     for seed in args.seeds:
         ls = lab_session(SynthSpec(object="baking_box", interaction="strike", seed=seed, preset="tiny", n_frames=900,
@@ -298,9 +297,9 @@ def main() -> None:
     bl.add_argument("--pose-noise", type=float, default=0.0)
     bl.add_argument("--contact-breaking", nargs="+", default=["off", "0.001"])
     bl.add_argument("--contact-erp", default="off", help="contact erp with a contact breaking threshold set ('off': Bullet's)")
-    bl.add_argument("--lab-strike-contact", choices=("touch", "velocity", "bullet"), default="touch",
-                    help="the lab's sphere-object contact: from the touch on (the lab's setting), from the touch on at "
-                         "the velocity level only (no push-out of the overlap), or as Bullet makes it")
+    bl.add_argument("--lab-strike-contact", choices=("touch", "velocity", "bullet"), default="bullet",
+                    help="the lab's sphere-object contact: from the touch on, from the touch on at the velocity level "
+                         "only (no push-out of the overlap), or as Bullet makes it (the lab's default)")
     lb = sub.add_parser("lab")
     lb.add_argument("--speeds", type=float, nargs="+", default=[0.4, 0.55, 0.7], help="commanded strike speeds, m/s")
     lb.add_argument("--phases", type=int, default=12)

@@ -143,12 +143,7 @@ def test_hidden_robot_friction_acts_and_stays_out_of_the_session(tmp_path):
     same = _run("baking_box", "strike", HiddenEffects(friction_object_robot=0.15), n=60, mu=0.15)
     assert np.array_equal(same.X_WM, base.X_WM)
     rec = _run("baking_box", "strike", HiddenEffects(friction_object_robot=0.6), n=60, mu=0.15)
-    # a glancing hit's tangential impulse turns the box and bends its heading (with the strike's contact solved from
-    # the touch on: 0.99 mm and 2.7 deg at most over the frames; with every contact point solved as Bullet made it,
-    # 2.0 mm and 1.1 deg)
-    assert np.linalg.norm(rec.X_WM[:, :3, 3] - base.X_WM[:, :3, 3], axis=1).max() > 5e-4
-    turn = rotation_angle(np.einsum("nji,njk->nik", rec.X_WM[:, :3, :3], base.X_WM[:, :3, :3]))
-    assert np.degrees(turn.max()) > 1.0
+    assert np.linalg.norm(rec.X_WM[:, :3, 3] - base.X_WM[:, :3, 3], axis=1).max() > 1e-3
     with pytest.raises(ValueError, match="friction_object_robot"):
         HiddenEffects(friction_object_robot=-0.1)
     spec = SynthSpec(object="baking_box", interaction="strike", seed=1, preset="tiny", n_frames=8, noise=False,

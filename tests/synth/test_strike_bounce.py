@@ -1,11 +1,11 @@
 """The synthetic lab's strikes bounce as declared: the 10 kg sphere strikes a resting baking box through its CoM on a
 frictionless table, in the lab's own world (``tests/synth/strike_lab.py``), with the touch at six places within a
 physics step. A heavy striker launches the box at (1 + e) x the launch with e = 0 in every phase. With every contact
-point solved as Bullet makes it (``STRIKE_CONTACT_PROCESSING_M = None``, the lab before) the point is made while the
-gap is still open and the bounce is lost in some phases (here 3 of the 6); solved from the touch on (the lab's
-setting) it is kept in all (docs/residuals.md §7, "The synthetic lab's strikes"). The contact then starts inside the
-box by up to v h; with Bullet's push-out of that overlap (the lab's default) launches run up to a few per cent above
-the physics, with the sphere's contact solved at the velocity level only (``STRIKE_CONTACT_STIFFNESS_DAMPING`` =
+point solved as Bullet makes it (``STRIKE_CONTACT_PROCESSING_M = None``, the lab's default) the point is made while
+the gap is still open and the bounce is lost in some phases (here 3 of the 6); solved from the touch on
+(``STRIKE_TOUCH_PROCESSING_M``, off by default) it is kept in all (docs/residuals.md §7, "The synthetic lab's
+strikes"). The contact then starts inside the box by up to v h; with Bullet's push-out of that overlap launches run up
+to a few per cent above the physics (why the setting is off), with the sphere's contact solved at the velocity level only (``STRIKE_CONTACT_STIFFNESS_DAMPING`` =
 ``STRIKE_VELOCITY_ONLY``, off by default) they are the heavy striker's within 1 % (docs/residuals.md §7, "The launch
 kick").
 """
@@ -33,9 +33,10 @@ def _ratios() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return r3[:, 1] / r0[:, 1], r3[:, 1] / r3[:, 0], r0[:, 1] / r0[:, 0]
 
 
-def test_lab_strike_launches_with_the_declared_restitution_in_every_phase():
-    assert sim.STRIKE_CONTACT_PROCESSING_M == 0.0
+def test_lab_strike_launches_with_the_declared_restitution_in_every_phase(monkeypatch):
+    assert sim.STRIKE_CONTACT_PROCESSING_M is None  # off by default
     assert sim.STRIKE_CONTACT_STIFFNESS_DAMPING is None  # the push-out is Bullet's (off by default)
+    monkeypatch.setattr(sim, "STRIKE_CONTACT_PROCESSING_M", sim.STRIKE_TOUCH_PROCESSING_M)
     q, launch, launch0 = _ratios()
     assert np.all(np.abs(q - (1.0 + E)) < 0.03), q  # measured 1.280-1.297
     # a heavy striker: (1 + e) m_E / (m_E + m) = 1.262; Bullet's push-out of the penetration made in the step of the
@@ -48,6 +49,7 @@ def test_velocity_only_strike_launches_at_the_heavy_strikers_speed(monkeypatch):
     """Solved at the velocity level only, the contact adds no push-out of the overlap it starts with: the launch is the
     heavy striker's within 1 % in every phase (e = 0: 0.964-0.971 for 0.971; e = 0.3: 1.253-1.260 for 1.262) and the
     bounce ratio 1.3 within 0.01 (1.298-1.300)."""
+    monkeypatch.setattr(sim, "STRIKE_CONTACT_PROCESSING_M", sim.STRIKE_TOUCH_PROCESSING_M)
     monkeypatch.setattr(sim, "STRIKE_CONTACT_STIFFNESS_DAMPING", sim.STRIKE_VELOCITY_ONLY)
     q, launch, launch0 = _ratios()
     assert np.all(np.abs(q - (1.0 + E)) < 0.01), q
@@ -81,13 +83,16 @@ def test_push_spheres_keep_bullets_default(monkeypatch):
             calls.clear()
             sim.add_sphere(cid, inter, [0.0, 0.0, 0.5], 0.15, table)
             set_here = [kw["contactProcessingThreshold"] for kw in calls if "contactProcessingThreshold" in kw]
-            assert set_here == ([0.0] if inter == "strike" else []), inter
+            assert set_here == [], inter  # off by default
             law = [(kw["contactStiffness"], kw["contactDamping"]) for kw in calls if "contactStiffness" in kw]
             assert law == [], inter  # off by default
+        monkeypatch.setattr(sim, "STRIKE_CONTACT_PROCESSING_M", sim.STRIKE_TOUCH_PROCESSING_M)
         monkeypatch.setattr(sim, "STRIKE_CONTACT_STIFFNESS_DAMPING", sim.STRIKE_VELOCITY_ONLY)
         for inter in ("push", "pivot", "topple", "strike"):
             calls.clear()
             sim.add_sphere(cid, inter, [0.0, 0.0, 0.5], 0.15, table)
+            set_here = [kw["contactProcessingThreshold"] for kw in calls if "contactProcessingThreshold" in kw]
+            assert set_here == ([0.0] if inter == "strike" else []), inter
             law = [(kw["contactStiffness"], kw["contactDamping"]) for kw in calls if "contactStiffness" in kw]
             assert law == ([sim.STRIKE_VELOCITY_ONLY] if inter == "strike" else []), inter
     finally:
