@@ -149,7 +149,7 @@ def lookalike_rule(round_res: list[tuple], folds: list, cfg: ResidualConfig, fin
     of "before"). Two effects that explain the same residual equally well are then neither accepted: the data do
     not say which. ``round_res`` entries are (passes, all-frame fall, candidate, per-fold figures, θ̄); the
     rejected ones are returned with passes False, and their reasons in ``final`` and ``history`` say why."""
-    from service.residuals.loop import _acts_on, head_to_head, reduce_blocks
+    from service.residuals.loop import head_to_head
 
     by_name = {r[2].effect: r for r in round_res}
     rng = np.random.default_rng(cfg.seed + 9001)  # its own stream: the main loop's draws stay as they were
@@ -161,34 +161,31 @@ def lookalike_rule(round_res: list[tuple], folds: list, cfg: ResidualConfig, fin
             for other in ea.lookalikes:
                 if other not in by_name:
                     continue
-                eb, per_b = REGISTRY[other], by_name[other][3]
-                e_b, e_a, u = [], [], []
-                for f, fd in enumerate(folds):
-                    idx = [i for i, sg in enumerate(fd.held) if _acts_on(sg, ea) or _acts_on(sg, eb)]
-                    e_b.append(reduce_blocks([per_b[f]["after_frames"][i] for i in idx]))
-                    e_a.append(reduce_blocks([per[f]["after_frames"][i] for i in idx]))
-                    u.append(fd.units[np.asarray(idx, int)])
-                e_b, e_a, u = np.concatenate(e_b), np.concatenate(e_a), np.concatenate(u)
-                keep = np.isfinite(e_b) & np.isfinite(e_a)
-                better, txt = head_to_head(e_b[keep], e_a[keep], u[keep], cfg, rng) if keep.sum() >= 2 else (
-                    False, f"{int(keep.sum())} held-out block(s) to compare")
+                e_a, e_b, u = _lookalike_blocks(per, by_name[other][3], folds, ea, REGISTRY[other], "both")
+                better, txt = head_to_head(e_b, e_a, u, cfg, rng) if len(e_a) >= 2 else (
+                    False, f"{len(e_a)} held-out block(s) to compare")
                 if not better:
                     ok = False
                     why = (f"rejected: does not predict the held-out blocks better than its look-alike {other} "
                            f"({txt}); " + cand.reason.removeprefix("passes; "))
-                    cand = dataclasses.replace(cand, reason=why)
-                    final[cand.effect] = cand
-                    for h in history:
-                        if h["round"] == rnd + 1 and h["effect"] == cand.effect:
-                            h.update(passes=False, reason=why)
+                else:
+                    why = f"{cand.reason}; beats its look-alike {other} ({txt})"
+                cand = _record(cand, why, ok, final, history, rnd)
+                if not ok:
                     break
-                cand = dataclasses.replace(cand, reason=f"{cand.reason}; beats its look-alike {other} ({txt})")
-                final[cand.effect] = cand
-                for h in history:
-                    if h["round"] == rnd + 1 and h["effect"] == cand.effect:
-                        h.update(reason=cand.reason)
         out.append((ok, gain, cand, per, theta_rep))
     return out
+
+
+def _record(cand, why: str, ok: bool, final: dict, history: list, rnd: int):
+    """The candidate with its new reason ``why``, written to ``final`` and to its entry of round ``rnd`` in
+    ``history`` (with ``passes`` = ``ok``)."""
+    cand = dataclasses.replace(cand, reason=why)
+    final[cand.effect] = cand
+    for h in history:
+        if h["round"] == rnd + 1 and h["effect"] == cand.effect:
+            h.update(passes=ok, reason=why)
+    return cand
 
 
 def shared_component(a, b) -> str:
@@ -253,11 +250,7 @@ def lookalike_refutation(round_res: list[tuple], folds: list, cfg: ResidualConfi
                            + cand.reason.removeprefix("passes; "))
                 else:
                     why = f"{cand.reason}; not refuted by its look-alike {other} ({txt})"
-                cand = dataclasses.replace(cand, reason=why)
-                final[cand.effect] = cand
-                for h in history:
-                    if h["round"] == rnd + 1 and h["effect"] == cand.effect:
-                        h.update(passes=ok, reason=why)
+                cand = _record(cand, why, ok, final, history, rnd)
                 if not ok:
                     break
         out.append((ok, gain, cand, per, theta_rep))
