@@ -475,6 +475,16 @@ def add_object(cid: int, obj: SynthObject, X_WM0: np.ndarray, com_M: np.ndarray,
     return body, X_MI, I_M, evals
 
 
+def drive_sphere(cid: int, sphere: int, cmd: np.ndarray, mass: float, k: float, d: float, g: np.ndarray) -> None:
+    """The end effector's impedance law for the next physics step: F = K (cmd - x) - D v - m g (N, W) on the sphere
+    at its centre x (m, W) moving at v (m/s), gravity g (m/s^2, W) compensated; its spin held at zero."""
+    x, _ = pb.getBasePositionAndOrientation(sphere, physicsClientId=cid)
+    v, _ = pb.getBaseVelocity(sphere, physicsClientId=cid)
+    F = k * (cmd - np.asarray(x)) - d * np.asarray(v) - mass * g
+    pb.applyExternalForce(sphere, -1, F.tolist(), list(x), pb.WORLD_FRAME, physicsClientId=cid)
+    pb.resetBaseVelocity(sphere, angularVelocity=[0.0, 0.0, 0.0], physicsClientId=cid)
+
+
 def add_sphere(cid: int, interaction: str, p_W, mu_or: float, table: int) -> int:
     """The end-effector sphere at ``p_W`` (m, W) for ``interaction`` (its mass from ``controller``), friction ``mu_or``,
     not colliding with ``table``. For strikes its contact with the object is solved from the touch on
@@ -547,11 +557,7 @@ def simulate(
         damped = effects.linear_damping > 0 or effects.angular_damping > 0
 
         def step_robot(cmd: np.ndarray) -> None:
-            x, _ = pb.getBasePositionAndOrientation(sphere, physicsClientId=cid)
-            v, _ = pb.getBaseVelocity(sphere, physicsClientId=cid)
-            F = ee_k * (cmd - np.asarray(x)) - ee_d * np.asarray(v) - ee_mass * g
-            pb.applyExternalForce(sphere, -1, F.tolist(), list(x), pb.WORLD_FRAME, physicsClientId=cid)
-            pb.resetBaseVelocity(sphere, angularVelocity=[0.0, 0.0, 0.0], physicsClientId=cid)
+            drive_sphere(cid, sphere, cmd, ee_mass, ee_k, ee_d, g)
             if damped:  # hidden viscous damping as explicit forces (Bullet's own damping is off)
                 pc, qc = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
                 vc, wc = pb.getBaseVelocity(body, physicsClientId=cid)

@@ -48,11 +48,7 @@ def lab_strike(v: float, e: float, phase: float, *, mu: float = 0.0, height: flo
         g = np.array([0.0, 0.0, -sim.GRAVITY])
 
         def step(cmd: np.ndarray) -> None:
-            x, _ = pb.getBasePositionAndOrientation(sphere, physicsClientId=cid)
-            u, _ = pb.getBaseVelocity(sphere, physicsClientId=cid)
-            F = k_e * (cmd - np.asarray(x)) - d_e * np.asarray(u) - m_e * g
-            pb.applyExternalForce(sphere, -1, F.tolist(), list(x), pb.WORLD_FRAME, physicsClientId=cid)
-            pb.resetBaseVelocity(sphere, angularVelocity=[0.0, 0.0, 0.0], physicsClientId=cid)
+            sim.drive_sphere(cid, sphere, cmd, m_e, k_e, d_e, g)
             pb.stepSimulation(physicsClientId=cid)
 
         for _ in range(int(0.5 / H_LAB)):  # settle
