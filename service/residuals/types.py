@@ -280,9 +280,12 @@ class ResidualConfig:
         def is_int(v):
             return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
 
+        def is_num(v):  # a real number (a string or a bool from a config file is refused, not compared)
+            return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
+
         for name in ("segment_s", "rot_scale_m"):
             v = getattr(self, name)
-            if v is not None and not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < np.inf):
+            if v is not None and not (is_num(v) and 0 < v < np.inf):
                 bad(name, "a number > 0 or None")
         for name, lo in (("min_segment_frames", 2), ("max_train_segments", 1), ("max_heldout_segments", 1),
                          ("n_bootstrap", 1), ("max_effects", 0), ("fit_maxiter", 1), ("init_fit_frames", 1),
@@ -290,13 +293,13 @@ class ResidualConfig:
             if not (is_int(getattr(self, name)) and getattr(self, name) >= lo):
                 bad(name, f"an integer >= {lo}")
         for name in ("heldout_fraction", "alpha"):
-            if not 0 < getattr(self, name) < 1:
+            if not (is_num(getattr(self, name)) and 0 < getattr(self, name) < 1):
                 bad(name, "in (0, 1)")
         for name in ("sim_substep_s", "rest_speed", "impact_dv", "sliding_speed", "max_base_error_rel"):
-            if not 0 < getattr(self, name) < np.inf:
+            if not (is_num(getattr(self, name)) and 0 < getattr(self, name) < np.inf):
                 bad(name, "a finite number > 0")
         for name in ("min_rel_improvement", "tie_tol_rel", "contact_tol_m"):
-            if not 0 <= getattr(self, name) < np.inf:
+            if not (is_num(getattr(self, name)) and 0 <= getattr(self, name) < np.inf):
                 bad(name, "a finite number >= 0")
 
     @classmethod

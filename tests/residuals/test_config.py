@@ -27,6 +27,8 @@ def test_presets_are_valid():
     ({"sim_substep_s": float("nan")}, "sim_substep_s"),
     ({"rest_speed": 0.0}, "rest_speed"),
     ({"tie_tol_rel": -0.1}, "tie_tol_rel"),
+    ({"alpha": "0.05"}, "alpha"),  # a string from a config file: refused naming the field, not a TypeError
+    ({"segment_s": "0.3"}, "segment_s"),
 ])
 def test_bad_settings_are_refused(change, word):
     with pytest.raises(ValueError, match=word):

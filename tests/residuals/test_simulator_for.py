@@ -10,6 +10,8 @@ def test_simulator_for_carries_the_settings():
     with simulator_for(cfg) as sim:
         assert (sim.substep, sim.contact_breaking, sim.sphere_drive, sim.contact_persist) == (0.004, 0.003, "inverse", 0.02)
         assert sim._contact_kw == {"contactERP": 0.1}
+    with simulator_for(ResidualConfig(sphere_velocity_only=True)) as sim:
+        assert sim.sphere_velocity_only
 
 
 def test_simulator_for_the_defaults_is_the_loops():
@@ -18,3 +20,4 @@ def test_simulator_for_the_defaults_is_the_loops():
         assert sim.contact_breaking == cfg.contact_breaking_m == 0.001
         assert sim.sphere_drive == cfg.sphere_drive
         assert sim.contact_persist is None
+        assert sim.sphere_velocity_only is cfg.sphere_velocity_only is False
