@@ -35,6 +35,12 @@ def backproject(depth: np.ndarray, K: np.ndarray, u: np.ndarray, v: np.ndarray) 
     return np.stack([x, y, d], 1)
 
 
+def edge_tol(d, jump: float):
+    """The depth step (m) that counts as a discontinuity next to a reading at depth d (m; scalar or array): ``jump``
+    plus 2 % of d (the sensor's noise grows with depth)."""
+    return jump + 0.02 * d
+
+
 def depth_continuous(depth: np.ndarray, u: np.ndarray, v: np.ndarray, jump: float, holes: bool = True) -> np.ndarray:
     """(N,) bool: pixels (u,v) (N,) of depth (H,W) metres with a reading whose four neighbours (clamped at the
     border) all have one within ``jump`` + 2 % of its depth. A depth sensor blends the near and far surface at a
@@ -42,7 +48,7 @@ def depth_continuous(depth: np.ndarray, u: np.ndarray, v: np.ndarray, jump: floa
     no evidence of a discontinuity (only neighbours with a reading are compared)."""
     H, W = depth.shape
     d0 = depth[v, u]
-    tol = jump + 0.02 * d0
+    tol = edge_tol(d0, jump)
     ok = d0 > 0
     for du, dv in ((1, 0), (-1, 0), (0, 1), (0, -1)):
         nb = depth[np.clip(v + dv, 0, H - 1), np.clip(u + du, 0, W - 1)]

@@ -199,10 +199,13 @@ def _good(r: IcpResult, cfg: TrackingConfig) -> bool:
     return r.inlier_frac >= cfg.min_inlier_frac and r.rmse <= cfg.max_rmse
 
 
+def _fit_score(r: IcpResult) -> float:
+    """The registration score: inlier fraction minus 0.02 per millimetre of RMSE."""
+    return r.inlier_frac - 0.02 * r.rmse / 0.001
+
+
 def _better(a: IcpResult, b: IcpResult | None) -> bool:
-    if b is None:
-        return True
-    return (a.inlier_frac - 0.02 * a.rmse / 0.001) > (b.inlier_frac - 0.02 * b.rmse / 0.001)
+    return b is None or _fit_score(a) > _fit_score(b)
 
 
 def _jump(X_a: np.ndarray, X_b: np.ndarray, dt: float, cfg: TrackingConfig) -> bool:
@@ -779,11 +782,6 @@ def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
                 best = _on_path([r for r, ok in fits if ok], poses, cfg)
             X[j], frac[j], rmse[j] = best.X_WO, best.inlier_frac, best.rmse
             tracked[j] = best_ok
-
-
-def _fit_score(r: IcpResult) -> float:
-    """The registration score ``_better`` compares: inlier fraction minus 0.02 per millimetre of RMSE."""
-    return r.inlier_frac - 0.02 * r.rmse / 0.001
 
 
 def _on_path(fits: list[IcpResult], poses: list[np.ndarray], cfg: TrackingConfig) -> IcpResult:

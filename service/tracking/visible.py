@@ -34,6 +34,7 @@ import numpy as np
 
 from service.mesh import Mesh
 from service.sdf import RaySet, rays_from_frame
+from service.tracking.geometry import edge_tol
 from service.transforms import X_inv, project_to_pixels
 
 
@@ -67,7 +68,7 @@ def silhouette_pixels(depth: np.ndarray, mask: np.ndarray, px: int, jump: float)
     d = depth.astype(np.float32)
     behind = cv2.dilate(np.where(out, np.where(d > 0, d, np.float32(np.inf)), np.float32(0)), k)  # farthest outside
     front = cv2.erode(np.where(out & (d > 0), d, np.float32(np.inf)), k)  # nearest outside reading
-    tol = jump + 0.02 * d
+    tol = edge_tol(d, jump)
     return mask & (d > 0) & (behind > d + tol) & ~(front < d - tol)
 
 
