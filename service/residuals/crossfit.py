@@ -151,8 +151,25 @@ def lookalike_rule(round_res: list[tuple], folds: list, cfg: ResidualConfig, fin
     rejected ones are returned with passes False, and their reasons in ``final`` and ``history`` say why."""
     from service.residuals.loop import head_to_head
 
-    by_name = {r[2].effect: r for r in round_res}
     rng = np.random.default_rng(cfg.seed + 9001)  # its own stream: the main loop's draws stay as they were
+
+    def judge(cand, ea, other, per, per_b):
+        e_a, e_b, u = _lookalike_blocks(per, per_b, folds, ea, REGISTRY[other], "both")
+        better, txt = head_to_head(e_b, e_a, u, cfg, rng) if len(e_a) >= 2 else (
+            False, f"{len(e_a)} held-out block(s) to compare")
+        if not better:
+            return False, (f"rejected: does not predict the held-out blocks better than its look-alike {other} "
+                           f"({txt}); " + cand.reason.removeprefix("passes; "))
+        return True, f"{cand.reason}; beats its look-alike {other} ({txt})"
+
+    return _judge_lookalikes(round_res, final, history, rnd, judge)
+
+
+def _judge_lookalikes(round_res: list[tuple], final: dict, history: list, rnd: int, judge) -> list[tuple]:
+    """Every passing candidate of ``round_res`` against each of its look-alikes fitted in the same round, in order:
+    ``judge(cand, its Effect, look-alike name, its per-fold figures, the look-alike's)`` returns (still passing, new
+    reason); the verdict is recorded (``_record``) and the first failing one ends the candidate's checks."""
+    by_name = {r[2].effect: r for r in round_res}
     out = []
     for r in round_res:
         ok, gain, cand, per, theta_rep = r
@@ -161,15 +178,7 @@ def lookalike_rule(round_res: list[tuple], folds: list, cfg: ResidualConfig, fin
             for other in ea.lookalikes:
                 if other not in by_name:
                     continue
-                e_a, e_b, u = _lookalike_blocks(per, by_name[other][3], folds, ea, REGISTRY[other], "both")
-                better, txt = head_to_head(e_b, e_a, u, cfg, rng) if len(e_a) >= 2 else (
-                    False, f"{len(e_a)} held-out block(s) to compare")
-                if not better:
-                    ok = False
-                    why = (f"rejected: does not predict the held-out blocks better than its look-alike {other} "
-                           f"({txt}); " + cand.reason.removeprefix("passes; "))
-                else:
-                    why = f"{cand.reason}; beats its look-alike {other} ({txt})"
+                ok, why = judge(cand, ea, other, per, by_name[other][3])
                 cand = _record(cand, why, ok, final, history, rnd)
                 if not ok:
                     break
@@ -228,33 +237,21 @@ def lookalike_refutation(round_res: list[tuple], folds: list, cfg: ResidualConfi
     ones are returned with passes False, and their reasons in ``final`` and ``history`` say why."""
     from service.residuals.loop import head_to_head
 
-    by_name = {r[2].effect: r for r in round_res}
     rng = np.random.default_rng(cfg.seed + 9002)  # its own stream: the main loop's draws stay as they were
-    out = []
-    for r in round_res:
-        ok, gain, cand, per, theta_rep = r
-        if ok:
-            ea = REGISTRY[cand.effect]
-            for other in ea.lookalikes:
-                if other not in by_name:
-                    continue
-                eb = REGISTRY[other]
-                comp = shared_component(ea, eb)
-                e_a, e_b, u = _lookalike_blocks(per, by_name[other][3], folds, ea, eb, comp)
-                refuted, txt = head_to_head(e_a, e_b, u, cfg, rng) if len(e_a) >= 2 else (
-                    False, f"{len(e_a)} held-out block(s) to compare")
-                txt = f"{comp} error, {other} against it: {txt}"
-                if refuted:
-                    ok = False
-                    why = (f"rejected: its look-alike {other} predicts the held-out blocks better ({txt}); "
+
+    def judge(cand, ea, other, per, per_b):
+        eb = REGISTRY[other]
+        comp = shared_component(ea, eb)
+        e_a, e_b, u = _lookalike_blocks(per, per_b, folds, ea, eb, comp)
+        refuted, txt = head_to_head(e_a, e_b, u, cfg, rng) if len(e_a) >= 2 else (
+            False, f"{len(e_a)} held-out block(s) to compare")
+        txt = f"{comp} error, {other} against it: {txt}"
+        if refuted:
+            return False, (f"rejected: its look-alike {other} predicts the held-out blocks better ({txt}); "
                            + cand.reason.removeprefix("passes; "))
-                else:
-                    why = f"{cand.reason}; not refuted by its look-alike {other} ({txt})"
-                cand = _record(cand, why, ok, final, history, rnd)
-                if not ok:
-                    break
-        out.append((ok, gain, cand, per, theta_rep))
-    return out
+        return True, f"{cand.reason}; not refuted by its look-alike {other} ({txt})"
+
+    return _judge_lookalikes(round_res, final, history, rnd, judge)
 
 
 def held_out_parts(segs: list, n_traj: int, cfg: ResidualConfig) -> tuple[list[tuple[list, list]], list[np.ndarray]]:
