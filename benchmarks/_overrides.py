@@ -50,6 +50,19 @@ def off_or_positive(text: str) -> float | str:
     return v
 
 
+def off_or_unit(text: str) -> float | str:
+    """argparse type: a number in [0, 1] (an erp, a fraction), or 'off'."""
+    v = off_or_float(text)
+    if v != "off" and not 0 <= v <= 1:
+        raise argparse.ArgumentTypeError(f"expected a number in [0, 1] or 'off', not {text!r}")
+    return v
+
+
+def finite_float(text: str) -> float:
+    """argparse type: a finite number."""
+    return _ranged(text, lambda v: True, "a finite number")
+
+
 def _ranged(text: str, ok, what: str, cast=float):
     try:
         v = cast(text)

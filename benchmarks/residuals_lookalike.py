@@ -99,24 +99,29 @@ def compare(rec: dict, cfg) -> dict[str, tuple]:
 
 
 def main() -> None:
+    from _overrides import nonnegative_float, positive_int
+    from residuals import STRIKE_CASES
+
+    from service.residuals.types import ROBOT_SMOOTH_WEIGHTS, SPHERE_DRIVES
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[741])
-    ap.add_argument("--cases", nargs="+", default=["linear_damping", "friction"])
-    ap.add_argument("--sphere-drive", default=None)
-    ap.add_argument("--robot-smooth-weights", default=None)
-    ap.add_argument("--robot-smooth", type=float, default=None)
-    ap.add_argument("--folds", type=int, default=2)
+    ap.add_argument("--cases", nargs="+", default=["linear_damping", "friction"], choices=sorted(STRIKE_CASES))
+    ap.add_argument("--sphere-drive", default=None, choices=SPHERE_DRIVES)
+    ap.add_argument("--robot-smooth-weights", default=None, choices=ROBOT_SMOOTH_WEIGHTS)
+    ap.add_argument("--robot-smooth", type=nonnegative_float, default=None)
+    ap.add_argument("--folds", type=positive_int, default=2)
     ap.add_argument("--save", default=None)
     ap.add_argument("--load", default=None)
     args = ap.parse_args()
+    if args.load and not Path(args.load).is_file():
+        ap.error(f"--load: no such file {args.load}")
 
     from service.residuals import crossfit as cf
     from service.residuals import run
     from service.residuals.types import ResidualConfig, ResidualInputs
     from service.synth.types import HiddenEffects, SynthSpec
     from tests.residuals.synthlab import lab_session, perturbed_model
-
-    from residuals import STRIKE_CASES
 
     results = []
     if args.load:

@@ -24,7 +24,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from _overrides import nonnegative_float, off_or_positive, positive_float  # noqa: E402
+from _overrides import finite_float, nonnegative_float, off_or_positive, positive_float  # noqa: E402
 
 STARTS = ("touch", "in", "above", "tilt", "rock", "slide", "deep")  # how a rest begins (module docstring)
 
@@ -82,7 +82,7 @@ def main(argv=None) -> None:
     ap.add_argument("--margins", nargs="+", type=nonnegative_float, default=[0.0, 0.001, 0.004])
     ap.add_argument("--starts", nargs="+", default=list(STARTS), choices=STARTS)
     ap.add_argument("--real", action="store_true", help="the real tosses' blocks from rest or sliding instead")
-    ap.add_argument("--offsets", nargs="+", type=float, default=[0.0, -0.00113])
+    ap.add_argument("--offsets", nargs="+", type=finite_float, default=[0.0, -0.00113])
     ap.add_argument("--friction", type=nonnegative_float, default=0.205)
     ap.add_argument("--persist", type=positive_float, default=None, help="contact_persist_m of the simulator (default off)")
     args = ap.parse_args(argv)

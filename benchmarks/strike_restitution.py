@@ -286,31 +286,33 @@ def blocks(args) -> None:
 
 
 def main() -> None:
+    from _overrides import nonnegative_float, off_or_positive, off_or_unit, positive_float, positive_int, unit_float
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     ph = sub.add_parser("phases")
-    ph.add_argument("--speeds", type=float, nargs="+", default=[0.35, 0.45, 0.6])
-    ph.add_argument("--phases", type=int, default=12)
+    ph.add_argument("--speeds", type=positive_float, nargs="+", default=[0.35, 0.45, 0.6])
+    ph.add_argument("--phases", type=positive_int, default=12)
     ph.add_argument("--seed", type=int, default=2)
     bl = sub.add_parser("blocks")
     bl.add_argument("--seeds", type=int, nargs="+", default=[666, 667])
-    bl.add_argument("--pose-noise", type=float, default=0.0)
-    bl.add_argument("--contact-breaking", nargs="+", default=["off", "0.001"])
-    bl.add_argument("--contact-erp", default="off", help="contact erp with a contact breaking threshold set ('off': Bullet's)")
+    bl.add_argument("--pose-noise", type=nonnegative_float, default=0.0)
+    bl.add_argument("--contact-breaking", type=off_or_positive, nargs="+", default=["off", 0.001])
+    bl.add_argument("--contact-erp", type=off_or_unit, default="off", help="contact erp with a contact breaking threshold set ('off': Bullet's)")
     bl.add_argument("--lab-strike-contact", choices=("touch", "velocity", "bullet"), default="bullet",
                     help="the lab's sphere-object contact: from the touch on, from the touch on at the velocity level "
                          "only (no push-out of the overlap), or as Bullet makes it (the lab's default)")
     lb = sub.add_parser("lab")
-    lb.add_argument("--speeds", type=float, nargs="+", default=[0.4, 0.55, 0.7], help="commanded strike speeds, m/s")
-    lb.add_argument("--phases", type=int, default=12)
-    lb.add_argument("--restitutions", type=float, nargs="+", default=[0.1, 0.3, 0.5])
+    lb.add_argument("--speeds", type=positive_float, nargs="+", default=[0.4, 0.55, 0.7], help="commanded strike speeds, m/s")
+    lb.add_argument("--phases", type=positive_int, default=12)
+    lb.add_argument("--restitutions", type=unit_float, nargs="+", default=[0.1, 0.3, 0.5])
     lb.add_argument("--sphere-contact", nargs="+", choices=("bullet", "touch", "velocity"), default=["bullet", "touch"],
                     help="bullet: every point as Bullet makes it; touch: from the touch on, the overlap pushed out "
                          "through the velocity (the lab's); velocity: from the touch on, velocity level only")
-    lb.add_argument("--breaking", nargs="+", default=["off"], help="Bullet's contact breaking threshold(s) for the whole "
+    lb.add_argument("--breaking", type=off_or_positive, nargs="+", default=["off"], help="Bullet's contact breaking threshold(s) for the whole "
                     "world (a factor of each shape's bounding radius), or 'off' for Bullet's 0.02")
-    lb.add_argument("--mu", type=float, default=0.0, help="table friction")
-    lb.add_argument("--height-frac", type=float, default=None, help="contact height / box height (default: the CoM's)")
+    lb.add_argument("--mu", type=nonnegative_float, default=0.0, help="table friction")
+    lb.add_argument("--height-frac", type=unit_float, default=None, help="contact height / box height (default: the CoM's)")
     sub.add_parser("lab-rest")
     args = ap.parse_args()
     print("command: python benchmarks/strike_restitution.py " + " ".join(sys.argv[1:]), flush=True)
