@@ -31,9 +31,10 @@ Model
   held arm's reflected mass: the launch follows the sphere's measured path. What shows: launch speed vs
   sphere speed (restitution), constant deceleration mu g (table friction), speed-proportional deceleration
   (linear damping), spin decay (angular damping), heading-dependent deceleration (tilt), launch time vs the
-  robot log (clock offset). The sphere-object contact of a strike is solved only from the touch on
-  (``STRIKE_CONTACT_PROCESSING_M``): a contact point Bullet makes while the gap is still open would close the gap
-  instead of bouncing, and a third of the strikes lost their bounce at random.
+  robot log (clock offset). The sphere-object contact of a strike is solved as Bullet makes it by default: a contact
+  point made while the gap is still open closes the gap instead of bouncing, so about a third of the strikes lose
+  their bounce at random; ``STRIKE_CONTACT_PROCESSING_M = STRIKE_TOUCH_PROCESSING_M`` solves it only from the touch
+  on (off: it brings a launch kick, see the constants' comment).
 - Semi-implicit Euler at ``physics_hz`` (240 Hz default); the object state is sampled at the frame
   times i / fps, the robot at every physics step.
 Hidden viscous damping b (1/s) is applied as explicit forces, F = -m b_lin v at the CoM and
@@ -69,7 +70,7 @@ STRIKE_RUN_UP = 0.05  # m between the sphere and the object before a strike
 STRIKE_SPEED = (0.4, 0.7)  # m/s, commanded speed at the surface (random per strike)
 STRIKE_BRAKE = 0.01  # m of constant deceleration after the surface
 STRIKE_HOLD = 0.35  # s the sphere stays while the object slides
-# strike: the sphere-object contact is solved only from the touch on (m; Bullet's contact processing threshold, set on
+# strike: the sphere-object contact solved only from the touch on, when set (m; Bullet's contact processing threshold, set on
 # the sphere, which the pair's contact manifold takes as the smaller of the two bodies' values; None = Bullet's
 # default, every contact point made is solved). Bullet makes a point while the gap d is still below its breaking
 # threshold (0.02 x the smaller shape's bounding radius: 0.64 mm for the sphere) and its solver then closes the gap at
@@ -487,9 +488,9 @@ def drive_sphere(cid: int, sphere: int, cmd: np.ndarray, mass: float, k: float, 
 
 def add_sphere(cid: int, interaction: str, p_W, mu_or: float, table: int) -> int:
     """The end-effector sphere at ``p_W`` (m, W) for ``interaction`` (its mass from ``controller``), friction ``mu_or``,
-    not colliding with ``table``. For strikes its contact with the object is solved from the touch on
-    (``STRIKE_CONTACT_PROCESSING_M``) and, when ``STRIKE_CONTACT_STIFFNESS_DAMPING`` is set (off by default), solved at
-    the velocity level only; both set before any contact manifold of the sphere exists."""
+    not colliding with ``table``. For strikes, when set (both off by default), its contact with the object is solved
+    only from the touch on (``STRIKE_CONTACT_PROCESSING_M``) and at the velocity level only
+    (``STRIKE_CONTACT_STIFFNESS_DAMPING``); both set before any contact manifold of the sphere exists."""
     scol = pb.createCollisionShape(pb.GEOM_SPHERE, radius=EE_RADIUS - HULL_MARGIN, physicsClientId=cid)
     # the strike's arm is heavier and as stiff per kg (same bandwidth); the other interactions keep EE_MASS
     ee_mass, _, _ = controller(interaction)
