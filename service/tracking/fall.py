@@ -1,4 +1,5 @@
-"""Spin of a body of revolution through a topple: no turn about its own axis while it falls.
+"""Spin of a body of revolution through a topple: no turn about its own axis while it falls (and through the tilts of
+a pivot: ``pivot_runs``, ``pivot_bridge`` at the end of the module).
 
 Physics. A body of revolution (symmetry axis a) tipping over on the table is acted on by gravity, which passes
 through its centre of mass on the axis, by the table's normal force at the contact on the rim of its base, and by

@@ -113,7 +113,8 @@ def test_spin_pivot_bridges_a_textureless_body_and_leaves_a_rejected_correction_
 
 
 def test_config_refuses_bad_pivot_settings():
-    assert TrackingConfig().spin_pivot_deg == 0.0  # off by default
+    assert TrackingConfig().spin_pivot_deg == 5.0  # on by default (0: off, the previous outputs)
+    TrackingConfig(spin_pivot_deg=0.0)
     for bad in (-1.0, 45.0, float("nan")):
         with pytest.raises(ValueError, match="spin_pivot_deg"):
             TrackingConfig(spin_pivot_deg=bad)
