@@ -173,7 +173,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
 # it back (a pivot): gravity acts on the axis, the table's normal force at the lowest point of the rim lies in the
 # vertical plane through the axis, and the effector's normal force on a surface of revolution meets the axis, so only
 # friction moments turn the body about a (development bottle pivots 1468-1475, ground truth read by the diagnosis
-# only: 1-3° of twist over a tilt of 11-23°, most of it as the contact starts). The tracked poses add far more there:
+# only: at most 3.7° of twist over a tilt of 9-23°, most of it as the contact starts). The tracked poses add far more there:
 # ICP cannot see the spin and the texture's votes between views tilted 10-15° apart are biased, so the loop turns the
 # body by up to 13° about its axis in a tilt and the chain (``spin``) follows or adds its own drift (up to 11°), which
 # goes away when the body stands upright again and the views of the frames before the tilt return. So over each tilt
