@@ -1,4 +1,5 @@
-"""Spin of a body of revolution through a topple: no turn about its own axis while it falls.
+"""Spin of a body of revolution through a topple: no turn about its own axis while it falls (and through the tilts of
+a pivot: ``pivot_runs``, ``pivot_bridge`` at the end of the module).
 
 Physics. A body of revolution (symmetry axis a) tipping over on the table is acted on by gravity, which passes
 through its centre of mass on the axis, by the table's normal force at the contact on the rim of its base, and by
@@ -164,3 +165,63 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
     res = spin_closure(feats, X_WO, Q, N, fast=used | weak, theta_fast=np.cumsum(inc), **kw)
     return res, used
 
+
+
+# ---- the tilts of a pivot: no spin either (``spin_pivot_deg``) ------------------------------------------------------
+#
+# The same physics holds while the end effector tilts a standing body of revolution onto the rim of its base and lets
+# it back (a pivot): gravity acts on the axis, the table's normal force at the lowest point of the rim lies in the
+# vertical plane through the axis, and the effector's normal force on a surface of revolution meets the axis, so only
+# friction moments turn the body about a (development bottle pivots 1468-1475, ground truth read by the diagnosis
+# only: at most 3.7° of twist over a tilt of 9-23°, most of it as the contact starts). The tracked poses add far more there:
+# ICP cannot see the spin and the texture's votes between views tilted 10-15° apart are biased, so the loop turns the
+# body by up to 13° about its axis in a tilt and the chain (``spin``) follows or adds its own drift (up to 11°), which
+# goes away when the body stands upright again and the views of the frames before the tilt return. So over each tilt
+# of the tracked poses that leaves the standing direction of the axis and comes back to it, the correction keeps the
+# tracked rotation free of twist about a (``twist_steps``: θ_i = θ_{s−1} − Σ ψ), starting from the upright frame
+# before the tilt, and the difference to the correction of the upright frame after it (the twist the friction did
+# add, and what the no-twist sum cannot know) is spread along the tilt in proportion to the tilt's progress
+# (cumulative change of the axis' angle): a bridge between the two upright ends, which the texture measures against
+# the views before the tilt. A tilt where the correction already stays within ``tol_deg`` of the bridge keeps it.
+
+
+def pivot_runs(X_WO: np.ndarray, a: np.ndarray, min_deg: float, edge_deg: float = 1.0, max_deg: float = 45.0,
+               stand_deg: float = 15.0, smooth: int = 5) -> list[tuple[int, int]]:
+    """The tilts of a pivot in the poses X_WO (N,4,4) of a body with axis a (3,) in O standing on its base at frame 0
+    (axis within ``stand_deg`` of the vertical of W; else none: a lying body may be rolling): runs [s, e) of frames whose
+    axis direction in W (angle from frame 0's, median-filtered over ``smooth`` frames) is more than ``edge_deg`` from
+    frame 0's, reaching at least ``min_deg`` and less than ``max_deg`` (a topple is not one), and back within
+    ``edge_deg`` before the last frame or still tilted at the last one (e = N); s ≥ 1."""
+    from scipy.ndimage import median_filter
+
+    n = len(X_WO)
+    if n < 3 or axis_tilt_deg(X_WO[:1], a)[0] > stand_deg:
+        return []
+    u = np.einsum("nij,j->ni", X_WO[:, :3, :3], a / np.linalg.norm(a))
+    alpha = np.degrees(np.arccos(np.clip(u @ u[0], -1.0, 1.0)))
+    alpha = median_filter(alpha, size=smooth, mode="nearest")
+    return [(s, e) for s, e in runs(alpha > edge_deg) if s >= 1 and min_deg <= alpha[s:e].max() < max_deg]
+
+
+def pivot_bridge(theta: np.ndarray, X_WO: np.ndarray, a: np.ndarray, tilts: list[tuple[int, int]], tol_deg: float
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """(θ (N,), (N,) bool frames changed): the spin correction θ (rad) of the poses X_WO (N,4,4) with each tilt
+    [s, e) of ``tilts`` bridged without twist about a (3,) in O (comment above): θ_i = θ_{s−1} − Σ_{k=s..i} ψ_k + w_i D,
+    D making frame e (upright again) keep θ_e, w_i the fraction of the tilt's axis motion done by frame i; a tilt
+    still on at the last frame (e = N) has no upright end: D = 0. A tilt whose θ stays within ``tol_deg`` of its
+    bridge is left as it is."""
+    theta = theta.copy()
+    used = np.zeros(len(theta), bool)
+    psi = twist_steps(X_WO, a)
+    u = np.einsum("nij,j->ni", X_WO[:, :3, :3], a / np.linalg.norm(a))
+    n = len(theta)
+    for s, e in tilts:
+        f = min(e, n - 1)  # the upright frame after the tilt (the last frame when it is still tilted there)
+        free = theta[s - 1] - np.cumsum(psi[s:f + 1])  # frames s..f, no twist from the upright frame s−1
+        step = np.degrees(np.arccos(np.clip(np.einsum("ni,ni->n", u[s - 1:f], u[s:f + 1]), -1.0, 1.0)))
+        w = np.cumsum(step) / step.sum() if step.sum() > 0 else np.linspace(1.0 / (f - s + 1), 1.0, f - s + 1)
+        bridge = free + w * (theta[f] - free[-1]) if e < n else free
+        if np.max(np.abs(bridge[:e - s] - theta[s:e])) > np.radians(tol_deg):
+            theta[s:e] = bridge[:e - s]
+            used[s:e] = True
+    return theta, used

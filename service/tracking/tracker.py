@@ -873,8 +873,34 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
         from service.tracking.spin import smooth_twist
 
         res = smooth_twist(res, X, cfg.spin_twist_smooth, cfg.spin_max_deg)
+    if cfg.spin_pivot_deg > 0:  # the tilts of a pivot bridged without spin (service/tracking/fall.py)
+        res = _spin_pivot(res, X, cfg)
     X[:] = apply_spin(X, res)
     return res
+
+
+def _spin_pivot(res: "SpinResult", X: np.ndarray, cfg: TrackingConfig) -> "SpinResult":
+    """``res`` with the tilts of a pivot of the poses X (N,4,4) (``fall.pivot_runs``: the axis leaves its direction
+    of frame 0 by ``spin_pivot_deg``, less than ``spin_fall_min_deg``, for a body standing at frame 0) bridged without
+    spin about the axis (``fall.pivot_bridge``); unchanged for a body that is not one of revolution or a rejected
+    correction. A textureless body (``observable`` False, θ = 0) is bridged too: the physics does not need the print
+    (its ``observable`` flag, about the texture, is kept)."""
+    from dataclasses import replace as _replace
+
+    from service.tracking.fall import pivot_bridge, pivot_runs
+
+    if not res.is_revolution or res.rejected:
+        return res
+    tilts = pivot_runs(X, res.axis_O, cfg.spin_pivot_deg, cfg.spin_fall_edge_deg, cfg.spin_fall_min_deg,
+                       cfg.lie_level_stand_deg)
+    if not tilts:
+        return res
+    theta, used = pivot_bridge(res.theta, X, res.axis_O, tilts, cfg.spin_fall_tol_deg)
+    if not used.any():
+        return res
+    if cfg.spin_max_deg > 0 and np.max(np.abs(theta)) > np.radians(cfg.spin_max_deg):
+        return res  # as a correction above spin_max_deg anywhere: not applied (spin._finish)
+    return _replace(res, theta=theta)
 
 
 def _level_lying(X: np.ndarray, model: ObjectModel, spin: "SpinResult", table_z: float, cfg: TrackingConfig) -> None:
