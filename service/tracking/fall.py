@@ -99,9 +99,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
               rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4, fast_rate_deg: float = 2.0,
               fast_dilate: int = 4, fast_votes: int = 60, fall_rate_deg: float = 0.4, fall_min_deg: float = 45.0,
               fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0, lit: LitTest | None = None, n_view: int = 0,
-              view_upright_deg: float = 90.0
-
-              ) -> tuple[SpinResult, np.ndarray]:
+              view_upright_deg: float = 90.0, entry_fit: int = 0) -> tuple[SpinResult, np.ndarray]:
     """(spin correction, (N,) bool frames that took the no-twist increments) for the poses X_WO (N,4,4) of a body of
     revolution with model Q, N (M,3) in O and interior features ``feats`` (as ``spin_mixed``, whose settings the
     other arguments are): ``spin_mixed``'s estimate, except over the topples (``topple_frames``) where its spin
@@ -161,6 +159,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
                                long_votes=long_votes)
             theta_g = solve_spin_graph(n, links) if len(links) else np.zeros(n)
         inc = np.where(weak, np.r_[0.0, np.diff(theta_g)], inc)
-    res = spin_closure(feats, X_WO, Q, N, fast=used | weak, theta_fast=np.cumsum(inc), **kw)
+    res = spin_closure(feats, X_WO, Q, N, fast=used | weak, theta_fast=np.cumsum(inc), entry_fit=entry_fit,
+                       entry_level=used, **kw)
     return res, used
 
