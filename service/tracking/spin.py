@@ -39,7 +39,8 @@ Pose graph (``spin_links``, ``solve_spin_graph``): θ from a one-parameter pose 
 during motion (pair measurements across a large view change are biased), long links between similar views; see the
 comment above ``spin_links``. Mixed estimate (``spin_mixed``, the tracker's default): the chain, with the graph's
 increments over fast stretches of the tracked rotation where the chain pooled few votes; see the comment above
-``fast_frames``.
+``fast_frames``. A topple's stretch (``fall.spin_fall``) can start from the median corrected twist of the chain's
+voted frames before it instead of one frame's value (``entry_spin``).
 """
 
 from __future__ import annotations

@@ -311,7 +311,7 @@ class TrackingConfig:
     # about its axis either) instead of the raw chain value of its one entry frame, whose ±2-4° jitter at the
     # topple's onset the stretch would carry to the end of the session (docs/tracking.md "The entry of a topple's
     # stretch"); 0: off, the previous outputs bit for bit; otherwise >= 3
-    spin_fall_entry: int = 0
+    spin_fall_entry: int = 15
     # the light's features on a rolling body dropped from the spin votes (spin.lit_matches): a body of revolution
     # lying on the table (axis within spin_lit_lie_deg of the horizontal in both frames of a pair) whose axis line
     # moved across itself by d >= spin_lit_move (m) turned, by d / R rolling on its radius R (the model's 90th
