@@ -310,9 +310,10 @@ class TrackingConfig:
     # last this many chain-voted frames before it (spin.entry_spin: the body standing before a topple does not turn
     # about its axis either) instead of the raw chain value of its one entry frame, whose ±2-4° jitter at the
     # topple's onset the stretch would carry to the end of the session (docs/tracking.md "The entry of a topple's
-    # stretch"; on: evaluation 704 1.44 -> 1.40 deg median, the rest identical; development topples' entry error 1.35 ->
-    # 0.53 deg mean); 0: off, the previous outputs bit for bit; otherwise >= 3
-    spin_fall_entry: int = 15
+    # stretch"; 15: evaluation 704 1.44 -> 1.40 deg median, the rest identical; development topples' entry error 1.35
+    # -> 0.53 deg mean, but fresh topples 0.42 -> 0.75 and their medians up to +1.04 deg: off); 0: off, the previous
+    # outputs bit for bit; otherwise >= 3
+    spin_fall_entry: int = 0
     # the light's features on a rolling body dropped from the spin votes (spin.lit_matches): a body of revolution
     # lying on the table (axis within spin_lit_lie_deg of the horizontal in both frames of a pair) whose axis line
     # moved across itself by d >= spin_lit_move (m) turned, by d / R rolling on its radius R (the model's 90th
