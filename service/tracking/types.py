@@ -311,7 +311,7 @@ class TrackingConfig:
     # about its axis either) instead of the raw chain value of its one entry frame, whose ±2-4° jitter at the
     # topple's onset the stretch would carry to the end of the session (docs/tracking.md "The entry of a topple's
     # stretch"; 15: evaluation 704 1.44 -> 1.40 deg median, the rest identical; development topples' entry error 1.35
-    # -> 0.53 deg mean, but fresh topples 0.42 -> 0.75 and their medians up to +1.04 deg: off); 0: off, the previous
+    # -> 0.53 deg mean, but fresh topples 0.39 -> 0.68 and their medians up to +1.04 deg: off); 0: off, the previous
     # outputs bit for bit; otherwise >= 3
     spin_fall_entry: int = 0
     # the light's features on a rolling body dropped from the spin votes (spin.lit_matches): a body of revolution
