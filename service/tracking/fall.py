@@ -25,7 +25,9 @@ No-twist increments. With ψ_i the twist about a of the tracked frame-to-frame r
 the corrected poses X_WO(i) S(θ_i) of ``spin`` have the twist ψ_i + θ_i − θ_{i−1}, which is 0 for
 θ_i = θ_{i−1} − ψ_i. Over a topple's frames the spin correction takes these increments from the frame before it
 (``spin_closure`` with those frames as anchors, as the mixed estimate does with the graph's), the chain continuing
-from them after the landing.
+from them after the landing. With ``entry_fit`` (``spin_fall_entry``) the increments start from the median corrected
+twist of the chain-voted frames before the topple (``spin.entry_spin``: the standing body does not turn either)
+instead of the one entry frame's chain value.
 
 Guard. The increments carry the tracker's other errors (a tilt error of a few degrees turns part of each 10-15°
 fall step into twist: 1-2° over a topple on the development bottles), while the texture, where it follows the fall,
@@ -100,15 +102,15 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
               rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4, fast_rate_deg: float = 2.0,
               fast_dilate: int = 4, fast_votes: int = 60, fall_rate_deg: float = 0.4, fall_min_deg: float = 45.0,
               fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0, lit: LitTest | None = None, n_view: int = 0,
-              view_upright_deg: float = 90.0
-
-              ) -> tuple[SpinResult, np.ndarray]:
+              view_upright_deg: float = 90.0, entry_fit: int = 0) -> tuple[SpinResult, np.ndarray]:
     """(spin correction, (N,) bool frames that took the no-twist increments) for the poses X_WO (N,4,4) of a body of
     revolution with model Q, N (M,3) in O and interior features ``feats`` (as ``spin_mixed``, whose settings the
     other arguments are): ``spin_mixed``'s estimate, except over the topples (``topple_frames``) where its spin
     change differs from the no-twist change by more than ``fall_tol_deg``: those take the no-twist increments and
-    the other weak fast frames the graph's, as in ``spin_mixed`` (module docstring). No topple, or none refused by
-    the guard: ``spin_mixed``'s result itself."""
+    the other weak fast frames the graph's, as in ``spin_mixed`` (module docstring); ``entry_fit`` ≥ 3: those
+    topples' increments start from the median corrected twist of the last ``entry_fit`` chain-voted frames before
+    them (``spin.entry_spin``; 0: from the entry frame's own value). No topple, or none refused by the guard:
+    ``spin_mixed``'s result itself."""
     n = len(X_WO)
     memo: dict = {}
     parts: dict = {}  # spin_mixed's graph solution, reused below (the same links: same poses, axis and settings)
@@ -162,7 +164,8 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
                                long_votes=long_votes)
             theta_g = solve_spin_graph(n, links) if len(links) else np.zeros(n)
         inc = np.where(weak, np.r_[0.0, np.diff(theta_g)], inc)
-    res = spin_closure(feats, X_WO, Q, N, fast=used | weak, theta_fast=np.cumsum(inc), **kw)
+    res = spin_closure(feats, X_WO, Q, N, fast=used | weak, theta_fast=np.cumsum(inc), entry_fit=entry_fit,
+                       entry_level=used, **kw)
     return res, used
 
 

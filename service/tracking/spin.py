@@ -39,7 +39,8 @@ Pose graph (``spin_links``, ``solve_spin_graph``): θ from a one-parameter pose 
 during motion (pair measurements across a large view change are biased), long links between similar views; see the
 comment above ``spin_links``. Mixed estimate (``spin_mixed``, the tracker's default): the chain, with the graph's
 increments over fast stretches of the tracked rotation where the chain pooled few votes; see the comment above
-``fast_frames``.
+``fast_frames``. A topple's stretch (``fall.spin_fall``) can start from the median corrected twist of the chain's
+voted frames before it instead of one frame's value (``entry_spin``).
 """
 
 from __future__ import annotations
@@ -334,7 +335,8 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
                  n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0, profile: str = "off",
                  max_deg: float = 0.0, axis: tuple | None = None, fast: np.ndarray | None = None,
                  theta_fast: np.ndarray | None = None, lit: LitTest | None = None, n_view: int = 0,
-                 view_upright_deg: float = 90.0) -> SpinResult:
+                 view_upright_deg: float = 90.0, entry_fit: int = 0, entry_level: np.ndarray | None = None
+                 ) -> SpinResult:
     """Spin correction θ (N,) of the poses X_WO (N,4,4) of a body of revolution (module docstring) from each
     frame's interior features ``feats[i] = (points (F,3) in W, descriptors (F,32) or None)``
     (``interior_features``); X_WO is not changed (apply with ``apply_spin``). Q (M,3), N (M,3): the final model
@@ -348,7 +350,9 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     stretches) whose corrected poses are turned least from its own, predicted with the previous correction
     (``_nearest_views``; comment below), only while the body is upright: a frame whose axis is more than
     ``view_upright_deg`` from the vertical of W gets none, and only upright anchors are candidates (``_upright``;
-    90: every frame)."""
+    90: every frame). ``entry_fit`` ≥ 3 with ``entry_level`` (N,) bool (the fast frames of topples, whose increments
+    keep the body's twist): a fast stretch with such frames starts from the median corrected twist of the last
+    ``entry_fit`` chain-voted frames before it (``entry_spin``) instead of its entry frame's own θ; 0: off."""
     n = len(X_WO)
     is_rev, lam, a, c = axis if axis is not None else find_axis(Q, N, tau, sep, profile)
     theta = np.zeros(n)
@@ -362,10 +366,17 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     fixed = np.zeros(n, bool)  # frames of fast stretches (spin_mixed)
     entry = None  # the anchor before the current fast stretch
     upright = _upright(X_WO, a, view_upright_deg) if n_view > 0 else None  # the frames that may take view anchors
+    level = entry_level is not None and entry_fit > 0 and fast is not None and bool((entry_level & fast).any())
+    twist = twist_angles(X_WO, a) if level else None  # the tracked twist, for entry_spin
+    base = 0.0  # the spin the current fast stretch starts from (at its entry frame)
     for i in range(1, n):
         if fast is not None and fast[i]:
-            entry = anchors[-1] if entry is None else entry
-            theta[i] = theta[entry] + theta_fast[i] - theta_fast[entry]
+            if entry is None:
+                entry = anchors[-1]
+                base = theta[entry]
+                if level and entry_level[i:i + int(np.argmin(np.r_[fast[i:], False]))].any():  # a topple's stretch
+                    base = entry_spin(theta, votes, fixed, twist, entry, entry_fit)
+            theta[i] = base + theta_fast[i] - theta_fast[entry]
             fixed[i] = True
             Xc[i] = X_WO[i] @ spin_matrix(a, c, theta[i])
             anchors.append(i)
@@ -418,6 +429,34 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     idx = np.nonzero(ok)[0]
     full = np.interp(np.arange(n), idx, theta[idx])
     return _finish(full, smooth, max_deg, lam, a, c, votes, observable)
+
+
+# The entry of a topple's stretch (``entry_fit``, ``entry_level``; ``spin_fall_entry``). A fast stretch (a topple's
+# no-twist increments, a roll's pose-graph increments) is relative: it carries the spin of the frame it starts from
+# to its end, and the chain after it continues from the stretch's frames, its anchors. That frame's raw chain value
+# jitters by ±2-4° per frame at a topple's onset (28-59 votes per frame on development bottle topple 531), so one
+# frame's error is kept to the end of the session. A body of revolution standing before a topple, and tipping over,
+# does not turn about its axis (``fall``: no force on it has a moment about the axis), so its corrected twist
+# τ_i + θ_i (its rotation about the axis since frame 0, τ the tracked twist, ``twist_angles``) is one constant over
+# the chain-voted frames before the topple and the topple itself. A topple's stretch therefore starts from the median
+# corrected twist of the last ``entry_fit`` chain-voted frames before it, minus the entry frame's tracked twist.
+# (A roll's stretch starts while the body already turns: a median lags it, and a robust line did not do better
+# than the raw value at the roll entries of the development sessions; those keep the raw value.)
+
+def entry_spin(theta: np.ndarray, votes: np.ndarray, fixed: np.ndarray, twist: np.ndarray, entry: int, k: int
+               ) -> float:
+    """The spin correction (rad) a topple's stretch starts from at its entry frame ``entry`` (comment above): the
+    median corrected twist ``twist + theta`` (N,) rad over the last ``k`` frames up to ``entry`` with ``votes`` > 0
+    and after the last ``fixed`` frame (N,) bool (an earlier stretch), minus ``twist[entry]``; ``theta[entry]``
+    itself when there are fewer than 3 such frames (or ``k`` < 3) or the entry frame was not voted."""
+    if k < 3 or votes[entry] <= 0:
+        return float(theta[entry])
+    done = np.nonzero(fixed[:entry + 1])[0]
+    start = int(done[-1]) + 1 if len(done) else 0
+    idx = np.nonzero(votes[start:entry + 1] > 0)[0][-k:] + start
+    if len(idx) < 3:
+        return float(theta[entry])
+    return float(np.median(twist[idx] + theta[idx])) - float(twist[entry])
 
 
 # Anchors from the nearest views (``n_view``, ``spin_view_anchors``). The chain pools its votes against frame 0, the

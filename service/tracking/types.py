@@ -314,6 +314,14 @@ class TrackingConfig:
     # bridge; 0: off (docs/tracking.md "Worst frames of milk-carton topples and bottle pivots")
     spin_pivot_deg: float = 5.0  # on: development bottle pivots 1471 11.13 -> 3.15, 1474 13.84 -> 5.79 deg worst;
     # evaluation 711 1.11 / 6.26 -> 1.15 / 4.16 deg, the others identical
+    # a topple's no-twist stretch (spin_fall) starts from the median corrected twist (tracked twist + correction) of the
+    # last this many chain-voted frames before it (spin.entry_spin: the body standing before a topple does not turn
+    # about its axis either) instead of the raw chain value of its one entry frame, whose ±2-4° jitter at the
+    # topple's onset the stretch would carry to the end of the session (docs/tracking.md "The entry of a topple's
+    # stretch"; 15: evaluation 704 1.44 -> 1.40 deg median, the rest identical; development topples' entry error 1.35
+    # -> 0.53 deg mean, but fresh topples 0.39 -> 0.68 and their medians up to +1.04 deg: off); 0: off, the previous
+    # outputs bit for bit; otherwise >= 3
+    spin_fall_entry: int = 0
     # the light's features on a rolling body dropped from the spin votes (spin.lit_matches): a body of revolution
     # lying on the table (axis within spin_lit_lie_deg of the horizontal in both frames of a pair) whose axis line
     # moved across itself by d >= spin_lit_move (m) turned, by d / R rolling on its radius R (the model's 90th
@@ -453,6 +461,9 @@ class TrackingConfig:
         for name, hi in (("spin_lit_frac", 1.0), ("spin_lit_keep", 1.0), ("spin_lit_lie_deg", 90.0)):  # shares, an angle
             if not getattr(self, name) <= hi:
                 raise ValueError(f"TrackingConfig.{name} must be <= {hi:g}, not {getattr(self, name)!r}")
+        k = self.spin_fall_entry
+        if isinstance(k, bool) or not isinstance(k, int) or not (k == 0 or k >= 3):
+            raise ValueError(f"TrackingConfig.spin_fall_entry must be 0 or an int >= 3, not {self.spin_fall_entry!r}")
         u = self.spin_view_upright_deg
         if isinstance(u, bool) or not isinstance(u, (int, float)) or not 0 < u <= 90:
             raise ValueError(f"TrackingConfig.spin_view_upright_deg must be in (0, 90], not {self.spin_view_upright_deg!r}")
