@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as pb
 
+from service.sim.types import VELOCITY_ONLY_CONTACT
 from service.synth.objects import SynthObject
 from service.synth.types import HiddenEffects
 from service.transforms import make_X, mat_to_quat, quat_to_mat, so3_exp
@@ -88,14 +89,15 @@ STRIKE_CONTACT_PROCESSING_M: float | None = None
 # starts with ((stiffness N/m, damping N s/m) of Bullet's per-body contact law, set on the sphere; None = Bullet's
 # default, the world's erp: off). A contact made from the touch on starts inside the object by up to v h (2.3 mm at
 # 0.56 m/s, 240 Hz) and Bullet's solver pushes that out through the velocity at erp d / h, so launches run up to 7 %
-# above the physics. With STRIKE_VELOCITY_ONLY (stiffness 0) the pair's erp h k / (h k + d) is 0 (the overlap is left
-# until the bodies part) and its cfm 1 / (h (h k + d)) = 2.4e-4 /kg is negligible against the pair's inverse effective
-# mass (>= 3.4 /kg): the launch is the heavy striker's (1 + e) m_E / (m_E + m) within 1 %. Off by default: the residual
-# loop's replay keeps Bullet's push-out (its pushes need it), and a lab without the kick against a replay with it moved
-# the strike test's fitted damping from 1.65 to 2.50 or a wrong friction (docs/residuals.md §7, "The launch kick").
-# pybullet's split impulse does not act here: Bullet's multibody solver (pybullet's bodies are multibodies) does not
-# implement it (measured: sessions identical bit for bit).
-STRIKE_VELOCITY_ONLY: tuple[float, float] = (0.0, 1.0e6)
+# above the physics. With STRIKE_VELOCITY_ONLY (``service.sim.VELOCITY_ONLY_CONTACT``, stiffness 0) the pair's erp
+# h k / (h k + d) is 0 (the overlap is left until the bodies part) and its cfm 1 / (h (h k + d)) = 2.4e-4 /kg is
+# negligible against the pair's inverse effective mass (>= 3.4 /kg): the launch is the heavy striker's
+# (1 + e) m_E / (m_E + m) within 1 %. Off by default: the residual loop's replay keeps Bullet's push-out (its pushes
+# need it), and a lab without the kick against a replay with it moved the strike test's fitted damping from 1.65 to
+# 2.50 or a wrong friction (docs/residuals.md §7, "The launch kick"). pybullet's split impulse does not act here:
+# Bullet's multibody solver (pybullet's bodies are multibodies) does not implement it (measured: sessions identical
+# bit for bit).
+STRIKE_VELOCITY_ONLY: tuple[float, float] = VELOCITY_ONLY_CONTACT
 STRIKE_CONTACT_STIFFNESS_DAMPING: tuple[float, float] | None = None
 
 
