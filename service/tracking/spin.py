@@ -249,11 +249,20 @@ def interior_features(gray: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: 
 
 def _cyl(P_O: np.ndarray, a: np.ndarray, c: np.ndarray, e1: np.ndarray, e2: np.ndarray
          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Radius, height and azimuth of points (N,3) about the axis (a, c) with in-plane basis e1, e2."""
+    """Radius, height and azimuth of points (N,3) about the axis (a, c) with in-plane basis e1, e2 (all in one frame:
+    O for the spin votes, W for ``lit_matches``); m, m, rad in (−π, π] from e1 toward e2."""
     d = P_O - c
     h = d @ a
     x, y = d @ e1, d @ e2
     return np.hypot(x, y), h, np.arctan2(y, x)
+
+
+def _vertical_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """In-plane basis (e1, e2) about the unit axis a (3,) in W, not vertical: e1 the unit vertical (+z_W) direction
+    projected onto the plane, e2 = a × e1; ``_cyl``'s azimuth with it is measured from the vertical."""
+    e1 = np.array([0.0, 0.0, 1.0]) - a[2] * a
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(a, e1)
 
 
 def spin_votes(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray, a: np.ndarray, c: np.ndarray,
@@ -305,14 +314,9 @@ def lit_matches(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray
     if d < min_move:
         return None
 
-    def azimuth(P: np.ndarray, C: np.ndarray, ax: np.ndarray) -> np.ndarray:  # from the vertical, about ax
-        e1 = np.array([0.0, 0.0, 1.0]) - ax[2] * ax
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(ax, e1)
-        r = P - C
-        return np.arctan2(r @ e2, r @ e1)
-
-    turn = np.angle(np.exp(1j * (azimuth(pW, Pi, ai) - azimuth(qW, Pj, aj))))
+    fi = _cyl(pW, ai, Pi, *_vertical_basis(ai))[2]  # azimuths about each frame's axis line, from the vertical
+    fj = _cyl(qW, aj, Pj, *_vertical_basis(aj))[2]
+    turn = np.angle(np.exp(1j * (fi - fj)))
     return np.abs(turn) < frac * d / radius
 
 
