@@ -37,7 +37,7 @@ import numpy as np
 from service.model import ObjectModel
 from service.residuals.types import SPHERE_DRIVES, SimRequest
 from service.sim.types import VELOCITY_ONLY_CONTACT
-from service.transforms import make_X, mat_to_quat, quat_to_mat, so3_exp
+from service.transforms import make_X, mat_to_quat, quat_from_xyzw, quat_to_mat, quat_to_xyzw, so3_exp
 
 G = 9.81
 # The sphere's fixed constraint closes the fraction erp of its position error per sub-step, so at a steady
@@ -237,7 +237,7 @@ class BulletSimulator:
         X_WI0 = req.X_WO0 @ X_OI
         q = mat_to_quat(X_WI0[:3, :3])
         body = p.createMultiBody(
-            float(model.mass), shape, basePosition=X_WI0[:3, 3].tolist(), baseOrientation=[q[1], q[2], q[3], q[0]],
+            float(model.mass), shape, basePosition=X_WI0[:3, 3].tolist(), baseOrientation=quat_to_xyzw(q),
             physicsClientId=cid,
         )
         p.changeDynamics(
@@ -298,7 +298,7 @@ class BulletSimulator:
                     persist = None
             ps, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
             pos[k] = ps
-            quat[k] = (orn[3], orn[0], orn[1], orn[2])
+            quat[k] = quat_from_xyzw(orn)
         X_WI = make_X(quat_to_mat(quat), pos)
         R_IO = R_OI.T
         out[1:, :3, :3] = X_WI[:, :3, :3] @ R_IO

@@ -53,7 +53,7 @@ import pybullet as pb
 from service.sim.types import VELOCITY_ONLY_CONTACT
 from service.synth.objects import SynthObject
 from service.synth.types import HiddenEffects
-from service.transforms import make_X, mat_to_quat, quat_to_mat, so3_exp
+from service.transforms import make_X, mat_to_quat, pose_from_xyzw, quat_from_xyzw, quat_to_mat, quat_to_xyzw, so3_exp
 
 EE_RADIUS = 0.0195
 EE_MASS = 1.0
@@ -108,18 +108,6 @@ def controller(interaction: str) -> tuple[float, float, float]:
         k = EE_STIFFNESS * STRIKE_EE_MASS / EE_MASS
         return STRIKE_EE_MASS, k, float(2.0 * np.sqrt(k * STRIKE_EE_MASS))
     return EE_MASS, EE_STIFFNESS, EE_DAMPING
-
-
-def xyzw(q_wxyz: np.ndarray) -> list[float]:
-    return [float(q_wxyz[1]), float(q_wxyz[2]), float(q_wxyz[3]), float(q_wxyz[0])]
-
-
-def wxyz(q_xyzw) -> np.ndarray:
-    return np.array([q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]], float)
-
-
-def pose_from_pb(pos, orn) -> np.ndarray:
-    return make_X(quat_to_mat(wxyz(orn)), np.asarray(pos, float))
 
 
 @dataclass(frozen=True)
@@ -465,9 +453,9 @@ def add_object(cid: int, obj: SynthObject, X_WM0: np.ndarray, com_M: np.ndarray,
         ocol,
         -1,
         X_WM0[:3, 3].tolist(),  # createMultiBody takes the link (mesh) frame ...
-        xyzw(mat_to_quat(X_WM0[:3, :3])),
+        quat_to_xyzw(mat_to_quat(X_WM0[:3, :3])),
         baseInertialFramePosition=com_M.tolist(),
-        baseInertialFrameOrientation=xyzw(mat_to_quat(evecs)),
+        baseInertialFrameOrientation=quat_to_xyzw(mat_to_quat(evecs)),
         physicsClientId=cid,
     )
     # ... while getBasePositionAndOrientation reports the inertial frame: X_WM = X_WI @ inv(X_MI)
@@ -555,7 +543,7 @@ def simulate(
 
         def X_WM_now() -> np.ndarray:
             pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
-            return pose_from_pb(pos, orn) @ np.linalg.inv(X_MI)
+            return pose_from_xyzw(pos, orn) @ np.linalg.inv(X_MI)
 
         damped = effects.linear_damping > 0 or effects.angular_damping > 0
 
@@ -564,7 +552,7 @@ def simulate(
             if damped:  # hidden viscous damping as explicit forces (Bullet's own damping is off)
                 pc, qc = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
                 vc, wc = pb.getBaseVelocity(body, physicsClientId=cid)
-                R_WI = quat_to_mat(wxyz(qc))
+                R_WI = quat_to_mat(quat_from_xyzw(qc))
                 f_d = -obj.mass * effects.linear_damping * np.asarray(vc)
                 tau_d = -effects.angular_damping * (R_WI @ (evals * (R_WI.T @ np.asarray(wc))))
                 pb.applyExternalForce(body, -1, f_d.tolist(), list(pc), pb.WORLD_FRAME, physicsClientId=cid)

@@ -45,7 +45,7 @@ increments over fast stretches of the tracked rotation where the chain pooled fe
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -265,6 +265,31 @@ def _vertical_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return e1, np.cross(a, e1)
 
 
+def anchor_candidates(anchors: list[int], n_recent: int, n_spread: int) -> tuple[list[int], list[int]]:
+    """(older, candidates) of a frame's estimate against the earlier anchors (frame indices, in order): ``older``
+    the anchors before the ``n_recent`` latest, frame 0 left out; the candidates (sorted) frame 0, the ``n_recent``
+    latest and ``n_spread`` of the older ones spread evenly over them (the chain's drift is checked against frames
+    long past)."""
+    older = [j for j in anchors[:-n_recent] if j != 0]
+    spread = [older[k] for k in np.unique(np.linspace(0, len(older) - 1, n_spread).astype(int))] if older else []
+    return older, sorted(set([0] + spread + anchors[-n_recent:]))
+
+
+def matched_once(match: Callable[[np.ndarray, np.ndarray], np.ndarray]
+                 ) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``match(desc_a, desc_b) -> (M,2)`` that computes each pair once and answers again from memory, keyed by the
+    two descriptor arrays' identities (the caller keeps the arrays alive for as long as it uses the matcher)."""
+    memo: dict = {}
+
+    def match_once(da: np.ndarray, db: np.ndarray) -> np.ndarray:
+        key = (id(da), id(db))
+        if key not in memo:
+            memo[key] = match(da, db)
+        return memo[key]
+
+    return match_once
+
+
 def spin_votes(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray, a: np.ndarray, c: np.ndarray,
                tol: float, basis: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """Spin votes θ (K,) (rad, wrapped to (−π, π]) of matched points p (in frame i, W) and q (in anchor j, W):
@@ -378,9 +403,7 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
         kp, des = feats[i]
         if des is None or len(kp) < min_votes:
             continue
-        older = [j for j in anchors[:-n_recent] if j != 0]
-        spread = [older[k] for k in np.unique(np.linspace(0, len(older) - 1, n_spread).astype(int))] if older else []
-        cand = sorted(set([0] + spread + anchors[-n_recent:]))
+        older, cand = anchor_candidates(anchors, n_recent, n_spread)
         prev = anchors[-1]
         if n_view > 0 and upright[i]:  # older anchors of the nearest views, among the upright ones the texture
             voted = [j for j in older if not fixed[j] and upright[j]]  # measured (not increments)
@@ -631,14 +654,7 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
     axis = find_axis(Q, N, tau, sep, profile)
     if parts is not None:
         parts["axis"] = axis
-    memo: dict = {}
-
-    def match_once(da, db):  # the chain runs twice and the graph asks for many of the same pairs
-        key = (id(da), id(db))
-        if key not in memo:
-            memo[key] = match(da, db)
-        return memo[key]
-
+    match_once = matched_once(match)  # the chain runs twice and the graph asks for many of the same pairs
     kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match_once,
               sep=sep, profile=profile, max_deg=max_deg, axis=axis, lit=lit, n_view=n_view,
               view_upright_deg=view_upright_deg)
