@@ -163,6 +163,22 @@ def mat_to_quat(R: np.ndarray) -> np.ndarray:
     return quat_canonical(q).reshape(*shp, 4)
 
 
+def quat_to_xyzw(q: np.ndarray) -> list[float]:
+    """wxyz (4,) -> ``[x, y, z, w]`` floats (pybullet's order)."""
+    return [float(q[1]), float(q[2]), float(q[3]), float(q[0])]
+
+
+def quat_from_xyzw(q_xyzw) -> np.ndarray:
+    """pybullet's ``[x, y, z, w]`` (4,) -> wxyz (4,) float array."""
+    return np.array([q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]], float)
+
+
+def pose_from_xyzw(pos, orn_xyzw) -> np.ndarray:
+    """Pose (4,4) from a position (3,) and a pybullet ``[x, y, z, w]`` orientation (e.g. a body's base frame in W
+    from ``getBasePositionAndOrientation``)."""
+    return make_X(quat_to_mat(quat_from_xyzw(orn_xyzw)), np.asarray(pos, float))
+
+
 def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
     """wxyz (…,4) -> rotation vector (…,3), angle in [0, π]."""
     q = quat_canonical(q)

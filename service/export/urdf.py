@@ -38,6 +38,7 @@ import numpy as np
 from service.export.collision import make_collision_pieces
 from service.export.types import ExportConfig
 from service.model import ObjectModel
+from service.transforms import X_inv, mat_to_quat, pose_from_xyzw, quat_to_xyzw
 
 EXT_NS = "https://vysics.dev/urdf-extension/1"
 URDF_NAME = "object.urdf"
@@ -254,18 +255,11 @@ def apply_damping(body: int, client: int, linear_damping: float, angular_damping
     info = p.getDynamicsInfo(body, -1, physicsClientId=client)
     pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=client)
     v, w = p.getBaseVelocity(body, physicsClientId=client)
-    R_WI = _pose_xyzw(pos, orn)[:3, :3]
+    R_WI = pose_from_xyzw(pos, orn)[:3, :3]
     force = -float(info[0]) * linear_damping * np.asarray(v)
     torque = -angular_damping * (R_WI @ (np.asarray(info[2]) * (R_WI.T @ np.asarray(w))))
     p.applyExternalForce(body, -1, force.tolist(), list(pos), p.WORLD_FRAME, physicsClientId=client)
     p.applyExternalTorque(body, -1, torque.tolist(), p.WORLD_FRAME, physicsClientId=client)
-
-
-def _pose_xyzw(pos, orn_xyzw) -> np.ndarray:
-    from service.transforms import make_X, quat_to_mat
-
-    x, y, z, w = orn_xyzw
-    return make_X(quat_to_mat(np.array([w, x, y, z], float)), np.asarray(pos, float))
 
 
 def _X_OI(body: int, client: int) -> np.ndarray:
@@ -273,7 +267,7 @@ def _X_OI(body: int, client: int) -> np.ndarray:
     import pybullet as p
 
     info = p.getDynamicsInfo(body, -1, physicsClientId=client)
-    return _pose_xyzw(info[3], info[4])
+    return pose_from_xyzw(info[3], info[4])
 
 
 def get_X_WO(body: int, client: int) -> np.ndarray:
@@ -281,18 +275,14 @@ def get_X_WO(body: int, client: int) -> np.ndarray:
     returns the inertial frame I (CoM, principal axes), not the link frame O: X_WO = X_WI · X_OI⁻¹."""
     import pybullet as p
 
-    from service.transforms import X_inv
-
     pos, orn = p.getBasePositionAndOrientation(body, physicsClientId=client)
-    return _pose_xyzw(pos, orn) @ X_inv(_X_OI(body, client))
+    return pose_from_xyzw(pos, orn) @ X_inv(_X_OI(body, client))
 
 
 def set_X_WO(body: int, X_WO: np.ndarray, client: int) -> None:
     """Place frame O at X_WO (4,4): resets the base inertial frame to X_WO · X_OI."""
     import pybullet as p
 
-    from service.transforms import mat_to_quat
-
     X_WI = np.asarray(X_WO, float) @ _X_OI(body, client)
-    w, x, y, z = mat_to_quat(X_WI[:3, :3])
-    p.resetBasePositionAndOrientation(body, X_WI[:3, 3].tolist(), [x, y, z, w], physicsClientId=client)
+    p.resetBasePositionAndOrientation(body, X_WI[:3, 3].tolist(), quat_to_xyzw(mat_to_quat(X_WI[:3, :3])),
+                                      physicsClientId=client)

@@ -68,6 +68,18 @@ def free_space_votes(
     return n_free, n_obs
 
 
+def _without(grid: SdfGrid, vals: np.ndarray, D: np.ndarray) -> SdfGrid:
+    """``grid`` with the voxels D (nx,ny,nz) bool removed from its solid: S' = max(S, d_D), d_D (m) the signed
+    distance into D at voxel centres (positive inside D: voxels to the nearest voxel outside it − ½, negative
+    outside: ½ − voxels to the nearest voxel of D); ``vals`` the grid's values as float32."""
+    from scipy import ndimage
+
+    d_in = ndimage.distance_transform_edt(D)  # voxels to the nearest voxel outside D
+    d_out = ndimage.distance_transform_edt(~D)  # voxels to the nearest voxel of D
+    d_D = (float(grid.voxel) * np.where(D, d_in - 0.5, 0.5 - d_out)).astype(np.float32)
+    return SdfGrid(origin_O=grid.origin_O, voxel=grid.voxel, values=np.maximum(vals, d_D), observed=grid.observed)
+
+
 def carve_grid(
     grid: SdfGrid,
     depths: list[np.ndarray],
@@ -85,8 +97,6 @@ def carve_grid(
     A voxel with S < ``band`` (default one voxel) is free when it lies in observed empty space
     (``free_space_votes``) in at least ``min_frames`` frames and in at least ``min_frac`` of the frames in which
     it projects onto a reading. ``grid.values`` (nx,ny,nz); frames as for ``free_space_votes``."""
-    from scipy import ndimage
-
     from service.sdf.grid import grid_points
 
     vals = np.asarray(grid.values, np.float32)
@@ -101,11 +111,7 @@ def carve_grid(
     n = int(free.sum())
     if n == 0:
         return grid, 0
-    F = free.reshape(vals.shape)
-    d_in = ndimage.distance_transform_edt(F)  # voxels to the nearest non-free voxel
-    d_out = ndimage.distance_transform_edt(~F)  # voxels to the nearest free voxel
-    d_F = (float(grid.voxel) * np.where(F, d_in - 0.5, 0.5 - d_out)).astype(np.float32)
-    return SdfGrid(origin_O=grid.origin_O, voxel=grid.voxel, values=np.maximum(vals, d_F), observed=grid.observed), n
+    return _without(grid, vals, free.reshape(vals.shape)), n
 
 
 def open_unsupported(
@@ -141,7 +147,4 @@ def open_unsupported(
     n = int(drop.sum())
     if n == 0:
         return grid, 0
-    D = drop.reshape(vals.shape)
-    d_D = (float(grid.voxel) * np.where(D, ndimage.distance_transform_edt(D) - 0.5,
-                                        0.5 - ndimage.distance_transform_edt(~D))).astype(np.float32)
-    return SdfGrid(origin_O=grid.origin_O, voxel=grid.voxel, values=np.maximum(vals, d_D), observed=grid.observed), n
+    return _without(grid, vals, drop.reshape(vals.shape)), n

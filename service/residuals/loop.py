@@ -224,6 +224,20 @@ def _decay_basis(tau: np.ndarray, b: float) -> tuple[np.ndarray, np.ndarray]:
     return phi, (tau - phi) / b
 
 
+def flight_params(model: ObjectModel, effects: dict) -> tuple[np.ndarray, float, float, np.ndarray, np.ndarray]:
+    """What ``flight_start_state`` reads of ``model`` under ``effects`` (simulator keys on top of ``model.effects``):
+    gravity a (3,) in W (m per data second², ``gravity_vector`` times ``time_scale``²), linear and angular damping
+    b, b_ω (per data second), centre of mass c_O (3,) m in O and inertia I_O (3,3) kg m² about it."""
+    from service.residuals.simulate import gravity_vector
+
+    eff = {**model.effects, **effects}
+    s = float(eff.get("time_scale", 1.0))
+    a = gravity_vector(eff) * s**2
+    b = float(eff.get("linear_damping", 0.0)) * s
+    b_w = float(eff.get("angular_damping", 0.0)) * s
+    return a, b, b_w, np.asarray(model.com_O, float), np.asarray(model.inertia_O, float)
+
+
 def flight_start_state(t: np.ndarray, X: np.ndarray, at: int, h: float, model: ObjectModel,
                        effects: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Start pose X_WO (4,4), velocity v_WO_W (3,) and body spin w_WO_O (3,) at frame ``at`` of a free-flight window
@@ -239,15 +253,15 @@ def flight_start_state(t: np.ndarray, X: np.ndarray, at: int, h: float, model: O
     fitted derivative at τ = −h/2: v₀ = u − (h/2)(a − b u) (likewise ω₀). The simulator starts the CoM with
     v₀ + ω × R c_O, so the returned v_WO_W = v₀ − ω_W × (R₀ c_O).
     """
-    from service.residuals.simulate import gravity_vector
+    return _flight_fit(t, X, at, h, flight_params(model, effects), start_state(t, X, at, h)[2])
 
-    eff = {**model.effects, **effects}
-    s = float(eff.get("time_scale", 1.0))
-    a = gravity_vector(eff) * s**2
-    b = float(eff.get("linear_damping", 0.0)) * s
-    b_w = float(eff.get("angular_damping", 0.0)) * s
+
+def _flight_fit(t: np.ndarray, X: np.ndarray, at: int, h: float, params: tuple, w_hat: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``flight_start_state`` of the window (t, X, at, h) with the model's ``flight_params`` and the model-free
+    quadratic's spin ``w_hat`` (3,) rad/s in O (``start_state`` of the same window; it depends on the window only)."""
+    a, b, b_w, c_O, I = params
     tau = t - t[at]
-    c_O = np.asarray(model.com_O, float)
     R = X[:, :3, :3]
     pc = X[:, :3, 3] + R @ c_O
     phi, psi = _decay_basis(tau, b)
@@ -256,8 +270,6 @@ def flight_start_state(t: np.ndarray, X: np.ndarray, at: int, h: float, model: O
     v0 = u - 0.5 * h * (a - b * u)
     R_ref = R[at]
     r = quat_to_rotvec(mat_to_quat(np.swapaxes(R_ref, 0, 1)[None] @ R))
-    _, _, w_hat = start_state(t, X, at, h)
-    I = np.asarray(model.inertia_O, float)
     c = np.linalg.solve(I, np.cross(I @ w_hat, w_hat))
     phi_w, psi_w = _decay_basis(tau, b_w)
     A = np.stack([np.ones_like(tau), phi_w], 1)
@@ -481,10 +493,30 @@ class Evaluator:
         self.table_height = table_height
         self.rot_scale = rot_scale
         self.calls = 0
+        # per block with a per-model flight start (Segment.fit), keyed by id(fit): [fit (kept, so the id stays its
+        # own), the model-free spin ŵ of its window, the bits of the flight_params of its last start, that start]
+        self._flight: dict[int, list] = {}
+
+    def start(self, model: ObjectModel, effects: dict[str, float], seg: Segment
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Start state (X_WO (4,4), v_WO_W (3,), w_WO_O (3,)) of a rollout of ``seg``: the block's own, or, for a start
+        in free flight with ``flight_start_model``, ``flight_start_state`` for this (model, effects), computed again
+        only when its inputs (``flight_params``) differ from the block's previous rollout (an effect that does not act
+        in flight, e.g. a friction, leaves them as they were); the window's ŵ is computed once per block."""
+        if seg.fit is None:
+            return seg.X0, seg.v0, seg.w0
+        ent = self._flight.get(id(seg.fit))
+        if ent is None or ent[0] is not seg.fit:
+            ent = self._flight[id(seg.fit)] = [seg.fit, start_state(*seg.fit)[2], None, None]
+        params = flight_params(model, effects)
+        key = tuple(np.asarray(p, float).tobytes() for p in params)  # the same bits: the same start
+        if ent[2] != key:
+            ent[2], ent[3] = key, _flight_fit(*seg.fit, params, ent[1])
+        return ent[3]
 
     def rollout(self, model: ObjectModel, effects: dict[str, float], seg: Segment) -> np.ndarray:
         self.calls += 1
-        X0, v0, w0 = (seg.X0, seg.v0, seg.w0) if seg.fit is None else flight_start_state(*seg.fit, model, effects)
+        X0, v0, w0 = self.start(model, effects, seg)
         req = SimRequest(model, X0, v0, w0, seg.t, self.table_height, seg.robot, effects)
         return self.simulate(req)
 

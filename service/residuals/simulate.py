@@ -36,7 +36,8 @@ import numpy as np
 
 from service.model import ObjectModel
 from service.residuals.types import SPHERE_DRIVES, SimRequest
-from service.transforms import make_X, mat_to_quat, quat_to_mat, so3_exp
+from service.sim.types import VELOCITY_ONLY_CONTACT
+from service.transforms import make_X, mat_to_quat, quat_from_xyzw, quat_to_mat, quat_to_xyzw, so3_exp
 
 G = 9.81
 # The sphere's fixed constraint closes the fraction erp of its position error per sub-step, so at a steady
@@ -96,15 +97,6 @@ def _frictions(model: ObjectModel, eff: dict[str, float]) -> tuple[float, float]
     mu_t = float(eff.get("friction_object_table", model.friction.object_table))
     mu_r = float(model.friction.object_robot) * float(eff.get("friction_scale_robot", 1.0))
     return mu_t, mu_r
-
-
-# (stiffness N/m, damping N s/m) of Bullet's per-body contact law that makes a body's contacts velocity-only: the pair's
-# erp h k / (h k + d) is 0 (an overlap is left, not pushed out through the velocity) and its cfm 1 / (h (h k + d)) is
-# 5e-4 /kg at 2 ms, negligible against the sphere-object pair's inverse effective mass (> 1 /kg for objects < 1 kg).
-# Off by default (``ResidualConfig.sphere_velocity_only``): a sustained push's overlap is then never corrected.
-# Bullet's split impulse (position-only push-out) would be the usual remedy, but its multibody solver, which pybullet's
-# bodies use, does not implement it (measured: no effect, bit for bit).
-SPHERE_VELOCITY_ONLY_STIFFNESS_DAMPING = (0.0, 1.0e6)
 
 
 class BulletSimulator:
@@ -245,7 +237,7 @@ class BulletSimulator:
         X_WI0 = req.X_WO0 @ X_OI
         q = mat_to_quat(X_WI0[:3, :3])
         body = p.createMultiBody(
-            float(model.mass), shape, basePosition=X_WI0[:3, 3].tolist(), baseOrientation=[q[1], q[2], q[3], q[0]],
+            float(model.mass), shape, basePosition=X_WI0[:3, 3].tolist(), baseOrientation=quat_to_xyzw(q),
             physicsClientId=cid,
         )
         p.changeDynamics(
@@ -278,7 +270,9 @@ class BulletSimulator:
             p.changeDynamics(sphere, -1, lateralFriction=mu_r, restitution=1.0, linearDamping=0.0,
                              angularDamping=0.0, physicsClientId=cid)
             if self.sphere_velocity_only:
-                k, d = SPHERE_VELOCITY_ONLY_STIFFNESS_DAMPING
+                # no push-out of an overlap (cfm 5e-4 /kg at 2 ms); off by default: a sustained push's overlap is
+                # then never corrected
+                k, d = VELOCITY_ONLY_CONTACT
                 p.changeDynamics(sphere, -1, contactStiffness=k, contactDamping=d, physicsClientId=cid)
             p.setCollisionFilterPair(sphere, table, -1, -1, 0, physicsClientId=cid)
             cons = p.createConstraint(sphere, -1, -1, -1, p.JOINT_FIXED, [0, 0, 0], [0, 0, 0],
@@ -304,7 +298,7 @@ class BulletSimulator:
                     persist = None
             ps, orn = p.getBasePositionAndOrientation(body, physicsClientId=cid)
             pos[k] = ps
-            quat[k] = (orn[3], orn[0], orn[1], orn[2])
+            quat[k] = quat_from_xyzw(orn)
         X_WI = make_X(quat_to_mat(quat), pos)
         R_IO = R_OI.T
         out[1:, :3, :3] = X_WI[:, :3, :3] @ R_IO

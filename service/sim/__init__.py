@@ -6,7 +6,7 @@ registry :data:`EFFECTS` (extend it by passing ``effects={**EFFECTS, ...}``).
 
 from service.sim.effects import EFFECTS, EffectSpec, SimSettings, settings_for
 from service.sim.rollout import principal_frame, rollout
-from service.sim.types import RobotPath, RolloutResult, SimConfig
+from service.sim.types import VELOCITY_ONLY_CONTACT, RobotPath, RolloutResult, SimConfig
 
 __all__ = ["EFFECTS", "EffectSpec", "SimSettings", "settings_for", "rollout", "principal_frame",
-           "RobotPath", "RolloutResult", "SimConfig"]
+           "RobotPath", "RolloutResult", "SimConfig", "VELOCITY_ONLY_CONTACT"]

@@ -34,15 +34,7 @@ from service.mesh import Mesh
 from service.model import ObjectModel
 from service.sim.effects import EffectSpec, SimSettings, settings_for
 from service.sim.types import RobotPath, RolloutResult, SimConfig
-from service.transforms import X_inv, make_X, mat_to_quat, quat_to_mat
-
-
-def _xyzw(q_wxyz: np.ndarray) -> list[float]:
-    return [float(q_wxyz[1]), float(q_wxyz[2]), float(q_wxyz[3]), float(q_wxyz[0])]
-
-
-def _wxyz(q_xyzw) -> np.ndarray:
-    return np.array([q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]], float)
+from service.transforms import X_inv, make_X, mat_to_quat, pose_from_xyzw, quat_from_xyzw, quat_to_mat, quat_to_xyzw
 
 
 def principal_frame(inertia: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -172,7 +164,7 @@ def rollout(
         obj = pb.createMultiBody(
             baseMass=float(model.mass), baseCollisionShapeIndex=shape, basePosition=[0, 0, 0],
             baseInertialFramePosition=[float(x) for x in model.com_O],
-            baseInertialFrameOrientation=_xyzw(mat_to_quat(R_OI)), **kw,
+            baseInertialFrameOrientation=quat_to_xyzw(mat_to_quat(R_OI)), **kw,
         )
         dyn = dict(lateralFriction=cfg.table_friction_base, restitution=float(s.restitution),
                    linearDamping=0.0, angularDamping=0.0,
@@ -195,7 +187,7 @@ def rollout(
                 X_WO0 = X_WO0.copy()
                 X_WO0[2, 3] += lifted
         X_WI0 = X_WO0 @ X_OI
-        pb.resetBasePositionAndOrientation(obj, X_WI0[:3, 3].tolist(), _xyzw(mat_to_quat(X_WI0[:3, :3])), **kw)
+        pb.resetBasePositionAndOrientation(obj, X_WI0[:3, 3].tolist(), quat_to_xyzw(mat_to_quat(X_WI0[:3, :3])), **kw)
         R0 = X_WO0[:3, :3]
         w_W = R0 @ np.asarray(w0, float)
         v_com = np.asarray(v0, float) + np.cross(w_W, R0 @ np.asarray(model.com_O, float))
@@ -226,7 +218,7 @@ def rollout(
             nonlocal k, f_since
             pos, orn = pb.getBasePositionAndOrientation(obj, **kw)
             lin, ang = pb.getBaseVelocity(obj, **kw)
-            X_WI = make_X(quat_to_mat(_wxyz(orn)), np.asarray(pos))
+            X_WI = pose_from_xyzw(pos, orn)
             X_WO = X_WI @ X_IO
             R = X_WO[:3, :3]
             w_Wk = np.asarray(ang)
@@ -254,7 +246,7 @@ def rollout(
             if damped:
                 pc, qc = pb.getBasePositionAndOrientation(obj, **kw)
                 vc, wc = pb.getBaseVelocity(obj, **kw)
-                R_WI = quat_to_mat(_wxyz(qc))
+                R_WI = quat_to_mat(quat_from_xyzw(qc))
                 f_d = -model.mass * s.linear_damping * np.asarray(vc)
                 tau_d = -s.angular_damping * (R_WI @ (lam * (R_WI.T @ np.asarray(wc))))
                 pb.applyExternalForce(obj, -1, f_d.tolist(), list(pc), pb.WORLD_FRAME, **kw)

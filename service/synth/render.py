@@ -34,8 +34,8 @@ import pybullet as pb
 
 from service.synth.camera import NEAR, gl_projection_matrix, gl_view_matrix, linearize_depth
 from service.synth.objects import SynthObject
-from service.synth.sim import EE_RADIUS, TABLE_CENTRE_XY, xyzw
-from service.transforms import mat_to_quat, so3_exp
+from service.synth.sim import EE_RADIUS, TABLE_CENTRE_XY
+from service.transforms import mat_to_quat, quat_to_xyzw, so3_exp
 
 ARM_ROD = (0.011, 0.22)  # radius, length of the tool rod above the sphere
 ARM_FOREARM = (0.035, 0.42)
@@ -122,7 +122,7 @@ def _pose_cylinder(a: np.ndarray, b: np.ndarray) -> tuple[list, list]:
     x /= np.linalg.norm(x)
     y = np.cross(z, x)
     R = np.stack([x, y, z], 1)
-    return ((a + b) / 2).tolist(), xyzw(mat_to_quat(R))
+    return ((a + b) / 2).tolist(), quat_to_xyzw(mat_to_quat(R))
 
 
 @dataclass
@@ -231,7 +231,7 @@ class Renderer:
 
     def pose_scene(self, X_WM: np.ndarray, p_WE: np.ndarray, t: float, with_arm: bool = True, with_occluder: bool = True) -> None:
         self._X_WM = X_WM
-        self._place(self.obj, X_WM[:3, 3], xyzw(mat_to_quat(X_WM[:3, :3])))
+        self._place(self.obj, X_WM[:3, 3], quat_to_xyzw(mat_to_quat(X_WM[:3, :3])))
         bounds = [self._object_points(X_WM)]
         if with_arm:
             e = np.asarray(p_WE, float)
@@ -253,7 +253,7 @@ class Renderer:
             else:
                 p, yaw = self.occluder.pose(t)
                 R = so3_exp(np.array([0.0, 0.0, yaw]))
-                self._place(self.occ_body, p, xyzw(mat_to_quat(R)))
+                self._place(self.occ_body, p, quat_to_xyzw(mat_to_quat(R)))
                 corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)]) * np.asarray(self.occluder.half_extents)
                 bounds.append(corners @ R.T + p)
         self._bounds = bounds
@@ -308,7 +308,7 @@ class Renderer:
 
     def object_only_mask(self, X_WM: np.ndarray) -> np.ndarray:
         """Unoccluded silhouette (H,W) bool of the object alone at pose X_WM."""
-        self._place(self.obj_only, X_WM[:3, 3], xyzw(mat_to_quat(X_WM[:3, :3])), cid=self.oid)
+        self._place(self.obj_only, X_WM[:3, 3], quat_to_xyzw(mat_to_quat(X_WM[:3, :3])), cid=self.oid)
         mask = np.zeros((self.H, self.W), bool)
         win = self._window(self._object_points(X_WM))
         if win is None:

@@ -50,9 +50,10 @@ from dataclasses import dataclass
 import numpy as np
 import pybullet as pb
 
+from service.sim.types import VELOCITY_ONLY_CONTACT
 from service.synth.objects import SynthObject
 from service.synth.types import HiddenEffects
-from service.transforms import make_X, mat_to_quat, quat_to_mat, so3_exp
+from service.transforms import make_X, mat_to_quat, pose_from_xyzw, quat_from_xyzw, quat_to_mat, quat_to_xyzw, so3_exp
 
 EE_RADIUS = 0.0195
 EE_MASS = 1.0
@@ -88,14 +89,15 @@ STRIKE_CONTACT_PROCESSING_M: float | None = None
 # starts with ((stiffness N/m, damping N s/m) of Bullet's per-body contact law, set on the sphere; None = Bullet's
 # default, the world's erp: off). A contact made from the touch on starts inside the object by up to v h (2.3 mm at
 # 0.56 m/s, 240 Hz) and Bullet's solver pushes that out through the velocity at erp d / h, so launches run up to 7 %
-# above the physics. With STRIKE_VELOCITY_ONLY (stiffness 0) the pair's erp h k / (h k + d) is 0 (the overlap is left
-# until the bodies part) and its cfm 1 / (h (h k + d)) = 2.4e-4 /kg is negligible against the pair's inverse effective
-# mass (>= 3.4 /kg): the launch is the heavy striker's (1 + e) m_E / (m_E + m) within 1 %. Off by default: the residual
-# loop's replay keeps Bullet's push-out (its pushes need it), and a lab without the kick against a replay with it moved
-# the strike test's fitted damping from 1.65 to 2.50 or a wrong friction (docs/residuals.md §7, "The launch kick").
-# pybullet's split impulse does not act here: Bullet's multibody solver (pybullet's bodies are multibodies) does not
-# implement it (measured: sessions identical bit for bit).
-STRIKE_VELOCITY_ONLY: tuple[float, float] = (0.0, 1.0e6)
+# above the physics. With STRIKE_VELOCITY_ONLY (``service.sim.VELOCITY_ONLY_CONTACT``, stiffness 0) the pair's erp
+# h k / (h k + d) is 0 (the overlap is left until the bodies part) and its cfm 1 / (h (h k + d)) = 2.4e-4 /kg is
+# negligible against the pair's inverse effective mass (>= 3.4 /kg): the launch is the heavy striker's
+# (1 + e) m_E / (m_E + m) within 1 %. Off by default: the residual loop's replay keeps Bullet's push-out (its pushes
+# need it), and a lab without the kick against a replay with it moved the strike test's fitted damping from 1.65 to
+# 2.50 or a wrong friction (docs/residuals.md §7, "The launch kick"). pybullet's split impulse does not act here:
+# Bullet's multibody solver (pybullet's bodies are multibodies) does not implement it (measured: sessions identical
+# bit for bit).
+STRIKE_VELOCITY_ONLY: tuple[float, float] = VELOCITY_ONLY_CONTACT
 STRIKE_CONTACT_STIFFNESS_DAMPING: tuple[float, float] | None = None
 
 
@@ -106,18 +108,6 @@ def controller(interaction: str) -> tuple[float, float, float]:
         k = EE_STIFFNESS * STRIKE_EE_MASS / EE_MASS
         return STRIKE_EE_MASS, k, float(2.0 * np.sqrt(k * STRIKE_EE_MASS))
     return EE_MASS, EE_STIFFNESS, EE_DAMPING
-
-
-def xyzw(q_wxyz: np.ndarray) -> list[float]:
-    return [float(q_wxyz[1]), float(q_wxyz[2]), float(q_wxyz[3]), float(q_wxyz[0])]
-
-
-def wxyz(q_xyzw) -> np.ndarray:
-    return np.array([q_xyzw[3], q_xyzw[0], q_xyzw[1], q_xyzw[2]], float)
-
-
-def pose_from_pb(pos, orn) -> np.ndarray:
-    return make_X(quat_to_mat(wxyz(orn)), np.asarray(pos, float))
 
 
 @dataclass(frozen=True)
@@ -463,9 +453,9 @@ def add_object(cid: int, obj: SynthObject, X_WM0: np.ndarray, com_M: np.ndarray,
         ocol,
         -1,
         X_WM0[:3, 3].tolist(),  # createMultiBody takes the link (mesh) frame ...
-        xyzw(mat_to_quat(X_WM0[:3, :3])),
+        quat_to_xyzw(mat_to_quat(X_WM0[:3, :3])),
         baseInertialFramePosition=com_M.tolist(),
-        baseInertialFrameOrientation=xyzw(mat_to_quat(evecs)),
+        baseInertialFrameOrientation=quat_to_xyzw(mat_to_quat(evecs)),
         physicsClientId=cid,
     )
     # ... while getBasePositionAndOrientation reports the inertial frame: X_WM = X_WI @ inv(X_MI)
@@ -553,7 +543,7 @@ def simulate(
 
         def X_WM_now() -> np.ndarray:
             pos, orn = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
-            return pose_from_pb(pos, orn) @ np.linalg.inv(X_MI)
+            return pose_from_xyzw(pos, orn) @ np.linalg.inv(X_MI)
 
         damped = effects.linear_damping > 0 or effects.angular_damping > 0
 
@@ -562,7 +552,7 @@ def simulate(
             if damped:  # hidden viscous damping as explicit forces (Bullet's own damping is off)
                 pc, qc = pb.getBasePositionAndOrientation(body, physicsClientId=cid)
                 vc, wc = pb.getBaseVelocity(body, physicsClientId=cid)
-                R_WI = quat_to_mat(wxyz(qc))
+                R_WI = quat_to_mat(quat_from_xyzw(qc))
                 f_d = -obj.mass * effects.linear_damping * np.asarray(vc)
                 tau_d = -effects.angular_damping * (R_WI @ (evals * (R_WI.T @ np.asarray(wc))))
                 pb.applyExternalForce(body, -1, f_d.tolist(), list(pc), pb.WORLD_FRAME, physicsClientId=cid)

@@ -40,8 +40,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.tracking.spin import LitTest, SpinResult, fast_frames, runs, solve_spin_graph, spin_closure, spin_links, \
-    spin_mixed, widen
+from service.tracking.spin import LitTest, SpinResult, fast_frames, matched_once, runs, solve_spin_graph, \
+    spin_closure, spin_links, spin_mixed, widen
 from service.transforms import mat_to_quat
 
 
@@ -112,14 +112,8 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
     them (``spin.entry_spin``; 0: from the entry frame's own value). No topple, or none refused by the guard:
     ``spin_mixed``'s result itself."""
     n = len(X_WO)
-    memo: dict = {}
     parts: dict = {}  # spin_mixed's graph solution, reused below (the same links: same poses, axis and settings)
-
-    def match_once(da, db):  # the default estimate and the one with the topples share the pairs
-        key = (id(da), id(db))
-        if key not in memo:
-            memo[key] = match(da, db)
-        return memo[key]
+    match_once = matched_once(match)  # the default estimate and the one with the topples share the pairs
 
     base = spin_mixed(feats, X_WO, Q, N, tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes,
                       graph_votes=graph_votes, smooth=smooth, match=match_once, sep=sep, profile=profile,

@@ -24,6 +24,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from service.tracking.geometry import _cross, _exp_se3, orthonormalize
+from service.transforms import skew
 
 
 @dataclass
@@ -32,15 +33,6 @@ class BAResult:
     n_pairs: int  # overlapping pairs used in the last iteration
     cost0: float  # robust cost at the start (per residual)
     cost: float  # robust cost at the end (per residual)
-
-
-def _skew(p: np.ndarray) -> np.ndarray:
-    """(N,3) -> (N,3,3) cross-product matrices."""
-    S = np.zeros((len(p), 3, 3))
-    S[:, 0, 1], S[:, 0, 2] = -p[:, 2], p[:, 1]
-    S[:, 1, 0], S[:, 1, 2] = p[:, 2], -p[:, 0]
-    S[:, 2, 0], S[:, 2, 1] = -p[:, 1], p[:, 0]
-    return S
 
 
 def bundle_adjust(
@@ -121,7 +113,7 @@ def bundle_adjust(
                 gb = (J * w[:, None]).T @ r
                 if w_point > 0:  # small point-to-point term against sliding along planes
                     e = p - q
-                    Jp = np.concatenate([-_skew(p), np.broadcast_to(np.eye(3), (m, 3, 3))], 2)  # (m,3,6)
+                    Jp = np.concatenate([-skew(p), np.broadcast_to(np.eye(3), (m, 3, 3))], 2)  # (m,3,6)
                     Hb = Hb + w_point * np.einsum("nki,nkj->ij", Jp, Jp)
                     gb = gb + w_point * np.einsum("nki,nk->i", Jp, e)
                 _add_pair(H, g, a, b, Hb, gb)

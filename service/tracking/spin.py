@@ -46,7 +46,7 @@ voted frames before it instead of one frame's value (``entry_spin``).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -250,11 +250,45 @@ def interior_features(gray: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: 
 
 def _cyl(P_O: np.ndarray, a: np.ndarray, c: np.ndarray, e1: np.ndarray, e2: np.ndarray
          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Radius, height and azimuth of points (N,3) about the axis (a, c) with in-plane basis e1, e2."""
+    """Radius, height and azimuth of points (N,3) about the axis (a, c) with in-plane basis e1, e2 (all in one frame:
+    O for the spin votes, W for ``lit_matches``); m, m, rad in (−π, π] from e1 toward e2."""
     d = P_O - c
     h = d @ a
     x, y = d @ e1, d @ e2
     return np.hypot(x, y), h, np.arctan2(y, x)
+
+
+def _vertical_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """In-plane basis (e1, e2) about the unit axis a (3,) in W, not vertical: e1 the unit vertical (+z_W) direction
+    projected onto the plane, e2 = a × e1; ``_cyl``'s azimuth with it is measured from the vertical."""
+    e1 = np.array([0.0, 0.0, 1.0]) - a[2] * a
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(a, e1)
+
+
+def anchor_candidates(anchors: list[int], n_recent: int, n_spread: int) -> tuple[list[int], list[int]]:
+    """(older, candidates) of a frame's estimate against the earlier anchors (frame indices, in order): ``older``
+    the anchors before the ``n_recent`` latest, frame 0 left out; the candidates (sorted) frame 0, the ``n_recent``
+    latest and ``n_spread`` of the older ones spread evenly over them (the chain's drift is checked against frames
+    long past)."""
+    older = [j for j in anchors[:-n_recent] if j != 0]
+    spread = [older[k] for k in np.unique(np.linspace(0, len(older) - 1, n_spread).astype(int))] if older else []
+    return older, sorted(set([0] + spread + anchors[-n_recent:]))
+
+
+def matched_once(match: Callable[[np.ndarray, np.ndarray], np.ndarray]
+                 ) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``match(desc_a, desc_b) -> (M,2)`` that computes each pair once and answers again from memory, keyed by the
+    two descriptor arrays' identities (the caller keeps the arrays alive for as long as it uses the matcher)."""
+    memo: dict = {}
+
+    def match_once(da: np.ndarray, db: np.ndarray) -> np.ndarray:
+        key = (id(da), id(db))
+        if key not in memo:
+            memo[key] = match(da, db)
+        return memo[key]
+
+    return match_once
 
 
 def spin_votes(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray, a: np.ndarray, c: np.ndarray,
@@ -306,14 +340,9 @@ def lit_matches(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray
     if d < min_move:
         return None
 
-    def azimuth(P: np.ndarray, C: np.ndarray, ax: np.ndarray) -> np.ndarray:  # from the vertical, about ax
-        e1 = np.array([0.0, 0.0, 1.0]) - ax[2] * ax
-        e1 /= np.linalg.norm(e1)
-        e2 = np.cross(ax, e1)
-        r = P - C
-        return np.arctan2(r @ e2, r @ e1)
-
-    turn = np.angle(np.exp(1j * (azimuth(pW, Pi, ai) - azimuth(qW, Pj, aj))))
+    fi = _cyl(pW, ai, Pi, *_vertical_basis(ai))[2]  # azimuths about each frame's axis line, from the vertical
+    fj = _cyl(qW, aj, Pj, *_vertical_basis(aj))[2]
+    turn = np.angle(np.exp(1j * (fi - fj)))
     return np.abs(turn) < frac * d / radius
 
 
@@ -385,9 +414,7 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
         kp, des = feats[i]
         if des is None or len(kp) < min_votes:
             continue
-        older = [j for j in anchors[:-n_recent] if j != 0]
-        spread = [older[k] for k in np.unique(np.linspace(0, len(older) - 1, n_spread).astype(int))] if older else []
-        cand = sorted(set([0] + spread + anchors[-n_recent:]))
+        older, cand = anchor_candidates(anchors, n_recent, n_spread)
         prev = anchors[-1]
         if n_view > 0 and upright[i]:  # older anchors of the nearest views, among the upright ones the texture
             voted = [j for j in older if not fixed[j] and upright[j]]  # measured (not increments)
@@ -666,14 +693,7 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
     axis = find_axis(Q, N, tau, sep, profile)
     if parts is not None:
         parts["axis"] = axis
-    memo: dict = {}
-
-    def match_once(da, db):  # the chain runs twice and the graph asks for many of the same pairs
-        key = (id(da), id(db))
-        if key not in memo:
-            memo[key] = match(da, db)
-        return memo[key]
-
+    match_once = matched_once(match)  # the chain runs twice and the graph asks for many of the same pairs
     kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match_once,
               sep=sep, profile=profile, max_deg=max_deg, axis=axis, lit=lit, n_view=n_view,
               view_upright_deg=view_upright_deg)

@@ -100,7 +100,7 @@ def tilt_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     centre). ``match(desc_a, desc_b) -> (M,2)``. ``voted`` (N,) bool: only these frames are estimated (the frames
     whose spin the texture measured: where the spin is interpolated, its error enters the matches and, through an
     axis a few degrees off, the fitted tilt); the others interpolate."""
-    from service.tracking.spin import plane_basis
+    from service.tracking.spin import anchor_candidates, plane_basis
 
     n = len(X_WO)
     a = a / np.linalg.norm(a)
@@ -115,9 +115,7 @@ def tilt_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
         kp, des = feats[i]
         if des is None or len(kp) < min_votes or (voted is not None and not voted[i]):
             continue
-        older = [j for j in anchors[:-n_recent] if j != 0]
-        spread = [older[k] for k in np.unique(np.linspace(0, len(older) - 1, n_spread).astype(int))] if older else []
-        cand = sorted(set([0] + spread + anchors[-n_recent:]))
+        _, cand = anchor_candidates(anchors, n_recent, n_spread)
         prev = anchors[-1]
         Xpi = X_inv(X_WO[i] @ tilt_matrix(E @ beta[prev], o))  # frame i with the previous frame's correction
         pO_all = kp @ Xpi[:3, :3].T + Xpi[:3, 3]

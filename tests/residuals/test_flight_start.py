@@ -89,3 +89,36 @@ def test_flight_start_state_is_exact_with_the_right_model_and_the_quadratic_with
     # with the nominal gravity the off-centre fit is biased: the model's own dynamics enter the start state
     _, v_nom, _ = flight_start_state(t, X, 4, H, cube_model(), {})
     assert np.linalg.norm(v_nom - v4) > 1e-3
+
+
+def test_evaluator_fits_the_flight_start_again_only_when_its_inputs_change(monkeypatch):
+    """``Evaluator.start`` hands each rollout ``flight_start_state`` of its (model, effects), bit for bit, but fits it
+    again only when what the fit reads (``flight_params``: gravity, damping, CoM, inertia) changed since the block's
+    previous rollout: a friction leaves it as it was, a gravity scale or another CoM does not."""
+    import service.residuals.loop as loop
+
+    rng = np.random.default_rng(3)
+    tosses = [_toss(rng) for _ in range(3)]
+    inputs = ResidualInputs(cube_model(), tuple(tr for tr, *_ in tosses), 0.0)
+    cfg = ResidualConfig(sim_substep_s=H, flight_start_model=True, init_fit_frames_flight=41)
+    segs = make_segments(inputs, [m for _, m, *_ in tosses], cfg)
+    flight = [s for s in segs if s.fit is not None]
+    assert flight and any(s.fit is None for s in segs)
+    fits = []
+    real = loop._flight_fit
+    monkeypatch.setattr(loop, "_flight_fit", lambda *a: fits.append(a) or real(*a))
+    ev = loop.Evaluator(None, 0.0, 0.05)
+    model = cube_model()
+    shifted = dataclasses.replace(model, com_O=np.array([0.002, 0.0, -0.001]))
+    steps = [(model, {}, True), (model, {"friction_object_table": 0.3}, False), (model, {}, False),
+             (model, {"gravity_scale": 0.95}, True), (model, {"gravity_scale": 0.95, "restitution": 0.4}, False),
+             (model, {"linear_damping": 0.2}, True), (shifted, {"linear_damping": 0.2}, True), (model, {}, True)]
+    for m, eff, fitted in steps:
+        for s in flight:
+            n = len(fits)
+            got = ev.start(m, eff, s)
+            assert len(fits) == n + fitted, (eff, fitted)
+            want = flight_start_state(*s.fit, m, eff)
+            assert all(np.array_equal(g, w) for g, w in zip(got, want)), eff
+    rest = next(s for s in segs if s.fit is None)
+    assert all(g is w for g, w in zip(ev.start(model, {}, rest), (rest.X0, rest.v0, rest.w0)))

@@ -59,9 +59,13 @@ def test_silhouette_pixels_against_the_background_not_an_occluder():
 
 
 def test_no_band_behind_silhouette_readings_keeps_the_hidden_faces_in():
+    """Two small fits (32 voxels, 80 steps), with the band and with none behind the silhouette readings. Measured with
+    the rays' and the fit's seeds 0, 1, 2: the hidden faces 2.3-2.5 mm further in (x), 6.2-6.6 mm (y); the points
+    outside them -1.3-0.8 mm (band) against 9.3-12.0 mm (none); the seen faces within 0.4 mm. With the silhouette
+    readings given the band (``back`` ignored) the two fits are the same and the test fails."""
     depth, mask, X_WC = _scene()
     sil = silhouette_pixels(depth, mask, 3, 0.01)
-    cfg = SdfConfig(resolution=40, pad=0.02, steps=100, rays_per_step=1024, samples_near=8, samples_far=8,
+    cfg = SdfConfig(resolution=32, pad=0.02, steps=80, rays_per_step=1024, samples_near=8, samples_far=8,
                     w_empty=300.0)
     hs = below_table_halfspace(np.eye(4), 0.0)
     # 6 mm outside the never-seen −x and −y faces, next to the silhouette edges
