@@ -5,7 +5,8 @@ Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth,
 2. coarse motion: ORB matches inside the mask against the previous tracked frame and the keyframes (their
    3-D points stored in O), RANSAC over 3-point Kabsch hypotheses gives a candidate X_WO (with
    ``track_ransac_thr``, off, at a tight threshold first: keypoints on the outline stay put while a small body
-   turns under them, ``_feature_motion``);
+   turns under them, ``_feature_motion``; with ``track_ransac_px``, off, first in the camera: pixels across the
+   ray, ransac_thr along it, ``geometry.ray_inliers``);
 3. refinement: robust point-to-plane ICP of p_W against the object model built so far (keyframe points
    merged in O on a voxel grid), with the RANSAC inliers as point-to-point terms; from every candidate, the
    best fit (inlier fraction, then residual) wins;
