@@ -89,8 +89,9 @@ class TrackingConfig:
     # its keypoint lies within track_ransac_px pixels of the prediction across the ray and ransac_thr along it (the depth
     # reading); None: off (the isotropic ransac_thr ball). First, before track_ransac_thr / ransac_thr, which take over
     # when it finds fewer than feat_min_inliers. Development eggs: of the 1 cm consensus's inliers in a roll 38 % do not
-    # follow the surface (keypoints 2-8 px from where it moved them, within 1 cm: 7.7 px at 0.8 m across the ray);
-    # docs/tracking.md, "Eggs: why the loop's increment in a roll is short"
+    # follow the surface (keypoints 2-8 px from where it moved them, within 1 cm: 7.7 px at 0.8 m across the ray).
+    # Off: 2 px gained on 18 of 22 development eggs and on 704, 710, 711, and lost on the evaluation 703 and 707
+    # (docs/tracking.md, "Eggs: why the loop's increment in a roll is short")
     track_ransac_px: float | None = None
     min_inlier_frac: float = 0.35  # below: lost track
     max_rmse: float = 0.006  # above: lost track
