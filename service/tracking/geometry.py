@@ -106,28 +106,60 @@ def kabsch(A: np.ndarray, B: np.ndarray, w: np.ndarray | None = None) -> np.ndar
 
 
 def ransac_rigid(A: np.ndarray, B: np.ndarray, thr: float, iters: int = 200, rng: np.random.Generator | None = None,
-                 min_inliers: int = 6) -> tuple[np.ndarray | None, np.ndarray]:
-    """Robust pose with b ≈ X a from putative correspondences A, B (N,3). Returns (X or None, inlier mask (N,))."""
+                 min_inliers: int = 6, cam: tuple[np.ndarray, np.ndarray, float] | None = None
+                 ) -> tuple[np.ndarray | None, np.ndarray]:
+    """Robust pose with b ≈ X a from putative correspondences A, B (N,3). Returns (X or None, inlier mask (N,)).
+
+    An inlier lies within ``thr`` (m) of its prediction; with ``cam`` = (K (3,3), X_CA (4,4), px), A being points
+    measured by the camera C (X_CA: the frame of A in C), the prediction X⁻¹ b of a is compared in C instead: within
+    ``px`` pixels across the ray (reprojection) and ``thr`` along it (depth), the two directions of a keypoint's
+    noise (``ray_inliers``)."""
     n = len(A)
     if n < max(3, min_inliers):
         return None, np.zeros(n, bool)
     rng = rng or np.random.default_rng(0)
     idx = np.stack([rng.choice(n, 3, replace=False) for _ in range(iters)])
     Xs = kabsch(A[idx], B[idx])
-    res = np.linalg.norm(_rotate_all(Xs[:, :3, :3], A) + Xs[:, None, :3, 3] - B[None], axis=-1)
-    cnt = (res < thr).sum(1)
-    best = int(np.argmax(cnt))
-    inl = res[best] < thr
+    if cam is None:
+        res = np.linalg.norm(_rotate_all(Xs[:, :3, :3], A) + Xs[:, None, :3, 3] - B[None], axis=-1)
+        cnt = (res < thr).sum(1)
+        best = int(np.argmax(cnt))
+        inl = res[best] < thr
+    else:
+        inl_all = ray_inliers(A, B, Xs, cam, thr)
+        best = int(np.argmax(inl_all.sum(1)))
+        inl = inl_all[best]
     if inl.sum() < min_inliers:
         return None, inl
     for _ in range(2):
         X = kabsch(A[inl], B[inl])
-        r = np.linalg.norm(A @ X[:3, :3].T + X[:3, 3] - B, axis=1)
-        new = r < thr
+        if cam is None:
+            new = np.linalg.norm(A @ X[:3, :3].T + X[:3, 3] - B, axis=1) < thr
+        else:
+            new = ray_inliers(A, B, X[None], cam, thr)[0]
         if new.sum() < min_inliers:
             break
         inl = new
     return kabsch(A[inl], B[inl]), inl
+
+
+def ray_inliers(A: np.ndarray, B: np.ndarray, Xs: np.ndarray, cam: tuple[np.ndarray, np.ndarray, float], thr: float
+                ) -> np.ndarray:
+    """(M,N) bool: for every hypothesis Xs[m] (M,4,4) with b ≈ X a, whether a (N,3), measured by camera C, lies
+    within ``px`` pixels of the prediction X⁻¹ b across the camera ray and within ``thr`` (m) along it (depth);
+    ``cam`` = (K (3,3), X_CA (4,4), px). A keypoint's position across the ray is its image location (about a
+    pixel), along it the depth reading (a few millimetres at 0.8 m): one isotropic ball is either too wide across
+    or too narrow along."""
+    K, X_CA, px = cam
+    Ac = A @ X_CA[:3, :3].T + X_CA[:3, 3]
+    Rt = np.swapaxes(Xs[:, :3, :3], 1, 2)  # X⁻¹ = (Rᵀ, −Rᵀ t)
+    M = X_CA[None, :3, :3] @ Rt  # rotation of b into C
+    m = X_CA[:3, 3][None] - (M @ Xs[:, :3, 3, None])[..., 0]
+    Pc = _rotate_all(M, B) + m[:, None]
+    z = np.maximum(Pc[..., 2], 1e-6)
+    du = K[0, 0] * (Pc[..., 0] / z - Ac[None, :, 0] / Ac[None, :, 2])
+    dv = K[1, 1] * (Pc[..., 1] / z - Ac[None, :, 1] / Ac[None, :, 2])
+    return (du * du + dv * dv < px * px) & (np.abs(Pc[..., 2] - Ac[None, :, 2]) < thr)
 
 
 def _rotate_all(R: np.ndarray, A: np.ndarray) -> np.ndarray:

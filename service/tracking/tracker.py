@@ -5,7 +5,8 @@ Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth,
 2. coarse motion: ORB matches inside the mask against the previous tracked frame and the keyframes (their
    3-D points stored in O), RANSAC over 3-point Kabsch hypotheses gives a candidate X_WO (with
    ``track_ransac_thr``, off, at a tight threshold first: keypoints on the outline stay put while a small body
-   turns under them, ``_feature_motion``);
+   turns under them, ``_feature_motion``; with ``track_ransac_px``, off, first in the camera: pixels across the
+   ray, ransac_thr along it, ``geometry.ray_inliers``);
 3. refinement: robust point-to-plane ICP of p_W against the object model built so far (keyframe points
    merged in O on a voxel grid), with the RANSAC inliers as point-to-point terms; from every candidate, the
    best fit (inlier fraction, then residual) wins;
@@ -351,6 +352,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     kf_log: list[dict] = []
     n_feat = np.zeros((N, 2), int)
 
+    X_CW = X_inv(session.X_WC)
     icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist,
                   normal_cos=cfg.icp_normal_cos)
     n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
@@ -371,7 +373,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         fW, fO = _feature_corr(o, obs[a], X[a], keyframes, lost=(a != i - 1))
         feat_W = feat_O = None
         if len(fW) >= max(6, cfg.feat_min_inliers):
-            Xr, inl = _feature_motion(fW, fO, cfg, rng)
+            Xr, inl = _feature_motion(fW, fO, cfg, rng, cam=(session.K, X_CW))
             if Xr is not None:
                 Xc = X_inv(Xr)  # fO = Xr fW -> Xr = X_OW
                 cands.append(Xc)
@@ -1080,13 +1082,20 @@ def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: li
     return np.concatenate(A), np.concatenate(B)
 
 
-def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np.random.Generator
-                    ) -> tuple[np.ndarray | None, np.ndarray]:
+def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np.random.Generator,
+                    cam: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray | None, np.ndarray]:
     """RANSAC rigid fit (X_OW, inlier mask) of the tracking loop's ORB correspondences fW (current point, W) ↔ fO
-    (same point, O): at ``track_ransac_thr`` first when set, at ``ransac_thr`` when that finds fewer than
-    ``feat_min_inliers`` (or when it is None). A keypoint whose patch lies on the silhouette or an occluder's edge
-    stays put in the image while a small body turns under it; within the wide threshold of a surface that moved
-    less than it (a 3 cm egg turning 5°/frame: 2.6 mm) it joins the consensus and pulls the fit toward no motion."""
+    (same point, O): with ``track_ransac_px`` set and ``cam`` = (K (3,3), X_CW (4,4)) given, first in the camera
+    (within track_ransac_px pixels across the ray, ransac_thr along it: ``geometry.ray_inliers``); then at
+    ``track_ransac_thr`` when set; at ``ransac_thr`` when those find fewer than ``feat_min_inliers`` (or are off).
+    A keypoint whose patch lies on the silhouette or an occluder's edge stays put in the image while a small body
+    turns under it; within the wide threshold of a surface that moved less than it (a 3 cm egg turning 5°/frame:
+    2.6 mm) it joins the consensus and pulls the fit toward no motion."""
+    if cfg.track_ransac_px is not None and cam is not None:
+        Xr, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers,
+                               cam=(cam[0], cam[1], cfg.track_ransac_px))
+        if Xr is not None:
+            return Xr, inl
     if cfg.track_ransac_thr is not None:
         Xr, inl = ransac_rigid(fW, fO, cfg.track_ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
         if Xr is not None:

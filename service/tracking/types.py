@@ -85,6 +85,14 @@ class TrackingConfig:
     # Off: 0.004 gained on 3 of 4 development eggs (27-37 -> 18-27 deg median) and lost on the evaluation egg 707
     # (6.91 -> 9.68 deg), 704 and 709 (docs/tracking.md, "The loop's lag in a fast roll")
     track_ransac_thr: float | None = None
+    # tracking loop, ORB matches: the consensus measured in the camera (geometry.ray_inliers): a match is an inlier when
+    # its keypoint lies within track_ransac_px pixels of the prediction across the ray and ransac_thr along it (the depth
+    # reading); None: off (the isotropic ransac_thr ball). First, before track_ransac_thr / ransac_thr, which take over
+    # when it finds fewer than feat_min_inliers. Development eggs: of the 1 cm consensus's inliers in a roll 38 % do not
+    # follow the surface (keypoints 2-8 px from where it moved them, within 1 cm: 7.7 px at 0.8 m across the ray).
+    # Off: 2 px gained on 18 of 22 development eggs and on 704, 710, 711, and lost on the evaluation 703 and 707
+    # (docs/tracking.md, "Eggs: why the loop's increment in a roll is short")
+    track_ransac_px: float | None = None
     min_inlier_frac: float = 0.35  # below: lost track
     max_rmse: float = 0.006  # above: lost track
     max_speed: float = 1.5  # a pose farther than this (m/s) or
@@ -429,6 +437,10 @@ class TrackingConfig:
         for name in ("kf_still_speed", "kf_still_tilt_deg", "track_ransac_thr"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
+        if self.track_ransac_px is not None and (isinstance(self.track_ransac_px, bool)
+                                                 or not isinstance(self.track_ransac_px, (int, float))
+                                                 or not self.track_ransac_px > 0):
+            raise ValueError(f"TrackingConfig.track_ransac_px must be None or > 0 (pixels), not {self.track_ransac_px!r}")
         if self.spin_profile not in ("off", "mixed", "multi", "always"):
             raise ValueError("TrackingConfig.spin_profile must be 'off', 'mixed', 'multi' or 'always', "
                              f"not {self.spin_profile!r}")
