@@ -117,12 +117,15 @@ def phases(args) -> None:
         rows = [("lab settings (4.17 ms, restitution threshold 0.2 m/s, contact breaking 0.02 m)", None, None)]
         rows += [(f"loop's simulator, contact breaking {'0.02 m (Bullet)' if cb is None else f'{cb * 1e3:g} mm'}, contact "
                   f"erp {'Bullet' if erp is None else erp}", cb, erp) for cb, erp in ((None, None), (0.001, None), (0.001, 0.05))]
+        rows += [("loop's simulator, contact breaking 1 mm, sub-step split at the touch (touch_split)", 0.001, "split")]
         for name, cb, erp in rows:
             if name.startswith("lab"):
                 l0 = np.array([_lab_like_launch(v, 0.0, g) for g in gaps])
                 q = np.array([_lab_like_launch(v, E_TRUE, g) for g in gaps]) / l0
             else:
-                with BulletSimulator(0.002, contact_breaking_m=cb, contact_erp=erp) as sim:
+                split = erp == "split"
+                erp = None if split else erp
+                with BulletSimulator(0.002, contact_breaking_m=cb, contact_erp=erp, touch_split=split) as sim:
                     l0 = np.array([_loop_launch(sim, v, 0.0, g) for g in gaps])
                     q = np.array([_loop_launch(sim, v, E_TRUE, g) for g in gaps]) / l0
             print(f"v {v:.2f} m/s, {name}: launch(e=0.3)/launch(e=0) mean {q.mean():.3f}, bounce lost (< 1.1) in "

@@ -330,14 +330,14 @@ class BulletSimulator:
         for k in range(T - 1):
             for _ in range(int(n_sub[k])):
                 j += 1
-                if splitter is not None:
+                if splitter is not None:  # split at the sphere's time of impact when it falls in this sub-step
                     self._split_substep(splitter, cons, ee_path[j], h, body, mass, moments, b_lin, b_ang)
-                    continue
-                if ee_path is not None:
-                    p.changeConstraint(cons, ee_path[j].tolist(), maxForce=5000.0, physicsClientId=cid)
-                if b_lin or b_ang:  # viscous: F = −m b v at the CoM, τ = −b I_W ω
-                    self._damp(body, mass, moments, b_lin, b_ang)
-                p.stepSimulation(physicsClientId=cid)
+                else:
+                    if ee_path is not None:
+                        p.changeConstraint(cons, ee_path[j].tolist(), maxForce=5000.0, physicsClientId=cid)
+                    if b_lin or b_ang:  # viscous: F = −m b v at the CoM, τ = −b I_W ω
+                        self._damp(body, mass, moments, b_lin, b_ang)
+                    p.stepSimulation(physicsClientId=cid)
                 if persist is not None and p.getContactPoints(bodyA=body, bodyB=table, physicsClientId=cid):
                     self._remake_manifold(body, table, persist)
                     persist = None

@@ -29,7 +29,7 @@ TOUCH_OVERLAP_M = 1.0e-5  # m, the overlap the split lands the sphere at: Bullet
 MAX_PARTS = 4  # free parts of one step at most (a landing short of the touch is followed by one more)
 MIN_PART_S = 1.0e-9  # s, shorter parts are not made (the touch is now or at the end of the step)
 # pybullet's error-reduction defaults (PhysicsServerCommandProcessor): non-contact (constraints) 0.2, contact 0.08,
-# friction 0.2; a world that sets its own passes them to split_step
+# friction 0.2; a world that sets its own passes them to TouchSplitter
 BULLET_ERPS = {"erp": 0.2, "contactERP": 0.08, "frictionERP": 0.2}
 
 

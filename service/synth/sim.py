@@ -34,7 +34,8 @@ Model
   robot log (clock offset). The sphere-object contact of a strike is solved as Bullet makes it by default: a contact
   point made while the gap is still open closes the gap instead of bouncing, so about a third of the strikes lose
   their bounce at random; ``STRIKE_CONTACT_PROCESSING_M = STRIKE_TOUCH_PROCESSING_M`` solves it only from the touch
-  on (off: it brings a launch kick, see the constants' comment).
+  on (off: it brings a launch kick, see the constants' comment); ``STRIKE_TOUCH_SPLIT`` splits the step at the time of
+  impact so that the contact starts at the touch, without the kick (off by default, see its comment).
 - Semi-implicit Euler at ``physics_hz`` (240 Hz default); the object state is sampled at the frame
   times i / fps, the robot at every physics step.
 Hidden viscous damping b (1/s) is applied as explicit forces, F = -m b_lin v at the CoM and
@@ -101,8 +102,10 @@ STRIKE_CONTACT_STIFFNESS_DAMPING: tuple[float, float] | None = None
 # which the sphere, apart from the object, would reach it, the world is advanced by the time of impact t* (the bodies
 # free), so the contact starts at the touch (0.01 mm inside, Bullet's linear slop) instead of up to v h inside, then by
 # the rest of the step; Bullet's own law (its push-out of an overlap) is kept for every later step of the contact. It
-# implies the contact solved from the touch on (STRIKE_TOUCH_PROCESSING_M on the sphere), which keeps the bounce
-# (docs/residuals.md §7, "A strike's contact that starts at the touch").
+# implies the contact solved from the touch on (STRIKE_TOUCH_PROCESSING_M on the sphere), which keeps the bounce.
+# Measured: the isolated strike's launch is the same strike stepped 16 times finer within 0.8 % (touch mode: up to 6 %
+# fast). Off by default: with the residual loop's default drive the strike test's hidden damping is then fitted
+# 1.42 /s for 2.0 (docs/residuals.md §7, "A strike's contact that starts at the touch").
 STRIKE_TOUCH_SPLIT: bool = False
 
 
@@ -513,9 +516,10 @@ def strike_step(splitter, h: float, cmd_at, mass: float, k: float, d: float, dri
 
 def add_sphere(cid: int, interaction: str, p_W, mu_or: float, table: int) -> int:
     """The end-effector sphere at ``p_W`` (m, W) for ``interaction`` (its mass from ``controller``), friction ``mu_or``,
-    not colliding with ``table``. For strikes, when set (both off by default), its contact with the object is solved
-    only from the touch on (``STRIKE_CONTACT_PROCESSING_M``) and at the velocity level only
-    (``STRIKE_CONTACT_STIFFNESS_DAMPING``); both set before any contact manifold of the sphere exists."""
+    not colliding with ``table``. For strikes, when set (all off by default), its contact with the object is solved
+    only from the touch on (``STRIKE_CONTACT_PROCESSING_M``, or ``STRIKE_TOUCH_PROCESSING_M`` with ``STRIKE_TOUCH_SPLIT``)
+    and at the velocity level only (``STRIKE_CONTACT_STIFFNESS_DAMPING``); both set before any contact manifold of the
+    sphere exists."""
     scol = pb.createCollisionShape(pb.GEOM_SPHERE, radius=EE_RADIUS - HULL_MARGIN, physicsClientId=cid)
     # the strike's arm is heavier and as stiff per kg (same bandwidth); the other interactions keep EE_MASS
     ee_mass, _, _ = controller(interaction)
