@@ -3,9 +3,10 @@ for diagnosis only, never part of the service.
 
     python benchmarks/strike_restitution.py phases [--speeds 0.35 0.45 0.6] [--phases 12]
     python benchmarks/strike_restitution.py blocks --seeds 666 667 [--pose-noise 0] [--contact-breaking off 0.001]
-        [--contact-erp 0.05] [--lab-strike-contact touch|velocity|bullet]
+        [--contact-erp 0.05] [--lab-strike-contact touch|velocity|split|bullet] [--touch-split]
     python benchmarks/strike_restitution.py lab [--speeds 0.4 0.55 0.7] [--phases 12] [--restitutions 0.1 0.3 0.5]
-        [--sphere-contact bullet touch velocity] [--breaking off 0.005 0.002 0.001] [--mu 0] [--height-frac F]
+        [--sphere-contact bullet touch velocity split] [--breaking off 0.005 0.002 0.001] [--mu 0] [--height-frac F]
+        [--reference 16]
     python benchmarks/strike_restitution.py lab-rest
 
 ``phases``: a 10 kg sphere strikes a resting 0.3 kg box (9.5 x 6.5 x 12.5 cm) through its CoM on a frictionless table;
@@ -116,12 +117,15 @@ def phases(args) -> None:
         rows = [("lab settings (4.17 ms, restitution threshold 0.2 m/s, contact breaking 0.02 m)", None, None)]
         rows += [(f"loop's simulator, contact breaking {'0.02 m (Bullet)' if cb is None else f'{cb * 1e3:g} mm'}, contact "
                   f"erp {'Bullet' if erp is None else erp}", cb, erp) for cb, erp in ((None, None), (0.001, None), (0.001, 0.05))]
+        rows += [("loop's simulator, contact breaking 1 mm, sub-step split at the touch (touch_split)", 0.001, "split")]
         for name, cb, erp in rows:
             if name.startswith("lab"):
                 l0 = np.array([_lab_like_launch(v, 0.0, g) for g in gaps])
                 q = np.array([_lab_like_launch(v, E_TRUE, g) for g in gaps]) / l0
             else:
-                with BulletSimulator(0.002, contact_breaking_m=cb, contact_erp=erp) as sim:
+                split = erp == "split"
+                erp = None if split else erp
+                with BulletSimulator(0.002, contact_breaking_m=cb, contact_erp=erp, touch_split=split) as sim:
                     l0 = np.array([_loop_launch(sim, v, 0.0, g) for g in gaps])
                     q = np.array([_loop_launch(sim, v, E_TRUE, g) for g in gaps]) / l0
             print(f"v {v:.2f} m/s, {name}: launch(e=0.3)/launch(e=0) mean {q.mean():.3f}, bounce lost (< 1.1) in "
@@ -138,27 +142,50 @@ def lab(args) -> None:
     m_ratio = sim.STRIKE_EE_MASS / (sim.STRIKE_EE_MASS + 0.3)
     saved = sim.STRIKE_CONTACT_PROCESSING_M
     saved_law = sim.STRIKE_CONTACT_STIFFNESS_DAMPING
+    saved_split = sim.STRIKE_TOUCH_SPLIT
+
+    def use(setting: str) -> None:
+        sim.STRIKE_CONTACT_PROCESSING_M = None if setting in ("bullet", "split") else sim.STRIKE_TOUCH_PROCESSING_M
+        sim.STRIKE_CONTACT_STIFFNESS_DAMPING = sim.STRIKE_VELOCITY_ONLY if setting == "velocity" else None
+        sim.STRIKE_TOUCH_SPLIT = setting == "split"
+
     try:
+        ref = {}
+        if args.reference:  # the same strikes with the step split at the touch and N physics steps per lab step
+            use("split")
+            for v in args.speeds:
+                for e in [0.0, *args.restitutions]:
+                    ref[v, e] = np.array([lab_strike(v, e, ph, mu=args.mu, height=height, substeps=args.reference)[1]
+                                          for ph in phases])
         for setting, brk in [(s_, b_) for s_ in args.sphere_contact for b_ in args.breaking]:
-            sim.STRIKE_CONTACT_PROCESSING_M = None if setting == "bullet" else sim.STRIKE_TOUCH_PROCESSING_M
-            sim.STRIKE_CONTACT_STIFFNESS_DAMPING = sim.STRIKE_VELOCITY_ONLY if setting == "velocity" else None
+            use(setting)
             cb = None if brk == "off" else float(brk)
             for v in args.speeds:
                 r0 = np.array([lab_strike(v, 0.0, ph, mu=args.mu, height=height, breaking=cb) for ph in phases])
+                if ref:
+                    q = r0[:, 1] / ref[v, 0.0]
+                    print(f"sphere contact {setting}, breaking {brk}, command {v:.2f} m/s: launch / reference (split, "
+                          f"{args.reference} steps per lab step) e=0 {q.min():.4f}-{q.max():.4f}", end="", flush=True)
                 q0 = r0[:, 1] / r0[:, 0]
                 line = (f"sphere contact {setting}, breaking {brk}, command {v:.2f} m/s (approach {r0[:, 0].mean():.3f} m/s): e=0 launch/approach "
                         f"{q0.min():.3f}-{q0.max():.3f} (heavy striker through the CoM: {m_ratio:.3f})")
                 for e in args.restitutions:
                     re = np.array([lab_strike(v, e, ph, mu=args.mu, height=height, breaking=cb) for ph in phases])
+                    if ref:
+                        qr = re[:, 1] / ref[v, e]
+                        print(f", e={e:g} {qr.min():.4f}-{qr.max():.4f}", end="", flush=True)
                     q = re[:, 1] / r0[:, 1]
                     line += (f"; e={e:g}: launch/launch(e=0) mean {q.mean():.3f} min {q.min():.3f} max {q.max():.3f}, bounce lost "
                              f"(< 1 + e/2) in {int((q < 1 + e / 2).sum())}/{len(q)}, partly (< 1 + 0.9 e) in "
                              f"{int(((q >= 1 + e / 2) & (q < 1 + 0.9 * e)).sum())}; launch/approach "
                              f"{(re[:, 1] / re[:, 0]).min():.3f}-{(re[:, 1] / re[:, 0]).max():.3f}")
+                if ref:
+                    print(flush=True)
                 print(line, flush=True)
     finally:
         sim.STRIKE_CONTACT_PROCESSING_M = saved
         sim.STRIKE_CONTACT_STIFFNESS_DAMPING = saved_law
+        sim.STRIKE_TOUCH_SPLIT = saved_split
 
 
 def _lab_rest(breaking: float | None, margin: float, tilt: float) -> tuple:
@@ -252,7 +279,10 @@ def blocks(args) -> None:
     if args.lab_strike_contact != "bullet":  # docs/residuals.md §7, "The synthetic lab's strikes", "The launch kick"
         from service.synth import sim as lab_sim
 
-        lab_sim.STRIKE_CONTACT_PROCESSING_M = lab_sim.STRIKE_TOUCH_PROCESSING_M
+        if args.lab_strike_contact == "split":  # "A strike's contact that starts at the touch"
+            lab_sim.STRIKE_TOUCH_SPLIT = True
+        else:
+            lab_sim.STRIKE_CONTACT_PROCESSING_M = lab_sim.STRIKE_TOUCH_PROCESSING_M
         if args.lab_strike_contact == "velocity":
             lab_sim.STRIKE_CONTACT_STIFFNESS_DAMPING = lab_sim.STRIKE_VELOCITY_ONLY
     for seed in args.seeds:
@@ -271,7 +301,8 @@ def blocks(args) -> None:
         for cb in args.contact_breaking:
             cbv = None if cb == "off" else float(cb)
             erp = None if cbv is None or args.contact_erp == "off" else float(args.contact_erp)
-            with BulletSimulator(cfg.sim_substep_s, contact_breaking_m=cbv, contact_erp=erp) as sim:
+            with BulletSimulator(cfg.sim_substep_s, contact_breaking_m=cbv, contact_erp=erp,
+                                 touch_split=args.touch_split) as sim:
                 ev = Evaluator(sim, ls.table_height, object_radius(model))
                 E = np.array([reduce_blocks(ev.frame_scalar(model, {"restitution": e}, S), M) for e in grid]) * 1e3
             i3 = int(np.flatnonzero(grid == E_TRUE)[0])
@@ -299,16 +330,22 @@ def main() -> None:
     bl.add_argument("--pose-noise", type=nonnegative_float, default=0.0)
     bl.add_argument("--contact-breaking", type=off_or_positive, nargs="+", default=["off", 0.001])
     bl.add_argument("--contact-erp", type=off_or_unit, default="off", help="contact erp with a contact breaking threshold set ('off': Bullet's)")
-    bl.add_argument("--lab-strike-contact", choices=("touch", "velocity", "bullet"), default="bullet",
+    bl.add_argument("--lab-strike-contact", choices=("touch", "velocity", "split", "bullet"), default="bullet",
                     help="the lab's sphere-object contact: from the touch on, from the touch on at the velocity level "
                          "only (no push-out of the overlap), or as Bullet makes it (the lab's default)")
+    bl.add_argument("--touch-split", action="store_true",
+                    help="the loop's sub-step split at the sphere's time of impact (ResidualConfig.touch_split)")
     lb = sub.add_parser("lab")
     lb.add_argument("--speeds", type=positive_float, nargs="+", default=[0.4, 0.55, 0.7], help="commanded strike speeds, m/s")
     lb.add_argument("--phases", type=positive_int, default=12)
     lb.add_argument("--restitutions", type=unit_float, nargs="+", default=[0.1, 0.3, 0.5])
-    lb.add_argument("--sphere-contact", nargs="+", choices=("bullet", "touch", "velocity"), default=["bullet", "touch"],
-                    help="bullet: every point as Bullet makes it; touch: from the touch on, the overlap pushed out "
-                         "through the velocity (the lab's); velocity: from the touch on, velocity level only")
+    lb.add_argument("--sphere-contact", nargs="+", choices=("bullet", "touch", "velocity", "split"), default=["bullet", "touch"],
+                    help="bullet: every point as Bullet makes it (the lab's default); touch: from the touch on, the "
+                         "overlap pushed out through the velocity; velocity: from the touch on, velocity level only; "
+                         "split: the step split at the time of impact (sim.STRIKE_TOUCH_SPLIT)")
+    lb.add_argument("--reference", type=positive_int, default=None, metavar="N",
+                    help="also print each launch over the same strike's with the step split at the touch and N physics "
+                         "steps per lab step (a reference near the continuous physics)")
     lb.add_argument("--breaking", type=off_or_positive, nargs="+", default=["off"], help="Bullet's contact breaking threshold(s) for the whole "
                     "world (a factor of each shape's bounding radius), or 'off' for Bullet's 0.02")
     lb.add_argument("--mu", type=nonnegative_float, default=0.0, help="table friction")

@@ -104,7 +104,7 @@ class BulletSimulator:
 
     def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0, contact_breaking_m: float | None = None,
                  contact_erp: float | None = None, sphere_drive: str = "lead", contact_persist_m: float | None = None,
-                 sphere_velocity_only: bool = False):
+                 sphere_velocity_only: bool = False, touch_split: bool = False):
         import pybullet
 
         if contact_breaking_m is not None and not contact_breaking_m > 0:
@@ -133,6 +133,12 @@ class BulletSimulator:
         # the world's erp): a strike's contact starts inside the object by up to v h, and pushing that out at
         # erp d / h launches the object up to 6 % faster than the sphere (docs/residuals.md §7, "The launch kick")
         self.sphere_velocity_only = bool(sphere_velocity_only)
+        # a sub-step split at the time of impact of the robot sphere on the object (``service.sim.touch``; False: off):
+        # the sphere's contact starts at the touch instead of up to v h inside, so Bullet's push-out adds nothing to a
+        # strike's launch, while a sustained contact keeps Bullet's law (docs/residuals.md §7, "A strike's contact
+        # that starts at the touch")
+        self.touch_split = bool(touch_split)
+        self._contact_erp = contact_erp
         self._hulls: dict = {}
 
     def _hull_vertices(self, model: ObjectModel) -> np.ndarray:
@@ -158,6 +164,26 @@ class BulletSimulator:
             R = quat_to_mat(np.array([orn[3], orn[0], orn[1], orn[2]]))
             tau = -b_ang * (R @ (moments * (R.T @ np.asarray(w))))
             p.applyExternalTorque(body, -1, tau.tolist(), p.WORLD_FRAME, physicsClientId=cid)
+
+    def _split_substep(self, splitter, cons: int, target: np.ndarray, h: float, body: int, mass: float,
+                       moments: np.ndarray, b_lin: float, b_ang: float) -> float:
+        """One sub-step of ``h`` s towards the constraint target ``target`` (3,) m, W, split at the sphere's time of
+        impact on the object (``service.sim.touch.TouchSplitter``). The constraint moves the sphere at w = erp (u − x) / h
+        over the whole sub-step (x its position at the start): in a part of τ s starting t s in, the world's erp is
+        erp τ / h and the target u + w t, so the sphere is where the unsplit sub-step puts it, on its path; the force
+        bound is scaled by h / τ (the same impulse per part). Damping forces are applied per part. Returns the split
+        time (s; 0.0 when not split)."""
+        p, cid = self._p, self._cid
+        x0 = np.asarray(p.getBasePositionAndOrientation(splitter.sphere, physicsClientId=cid)[0], float)
+        u = np.asarray(target, float)
+        w = CONSTRAINT_ERP * (u - x0) / h
+
+        def apply(t: float, part: float) -> None:
+            p.changeConstraint(cons, (u + w * t).tolist(), maxForce=5000.0 * h / part, physicsClientId=cid)
+            if b_lin or b_ang:
+                self._damp(body, mass, moments, b_lin, b_ang)
+
+        return splitter.step(h, lambda t: (w, np.zeros(3)), apply)
 
     def _remake_manifold(self, body: int, table: int, threshold: float) -> None:
         """Re-make the object-table contact manifold with ``threshold`` (m); every other pair keeps its own. Bullet
@@ -278,6 +304,16 @@ class BulletSimulator:
             cons = p.createConstraint(sphere, -1, -1, -1, p.JOINT_FIXED, [0, 0, 0], [0, 0, 0],
                                       ee_path[0].tolist(), physicsClientId=cid)
 
+        splitter = None
+        if ee_path is not None and self.touch_split:
+            from service.sim.touch import BULLET_ERPS, TouchSplitter
+
+            erps = {**BULLET_ERPS, "erp": CONSTRAINT_ERP}
+            if self._contact_erp is not None:
+                erps["contactERP"] = float(self._contact_erp)
+            # a point made while the gap is open is not solved (the lab's strike sphere has the same setting)
+            p.changeDynamics(sphere, -1, contactProcessingThreshold=0.0, physicsClientId=cid)
+            splitter = TouchSplitter(cid, sphere, body, erps)
         persist = self.contact_persist if self.contact_breaking is not None else None
         b_lin = float(eff.get("linear_damping", 0.0)) / s_time
         b_ang = float(eff.get("angular_damping", 0.0)) / s_time
@@ -288,11 +324,14 @@ class BulletSimulator:
         for k in range(T - 1):
             for _ in range(int(n_sub[k])):
                 j += 1
-                if ee_path is not None:
-                    p.changeConstraint(cons, ee_path[j].tolist(), maxForce=5000.0, physicsClientId=cid)
-                if b_lin or b_ang:  # viscous: F = −m b v at the CoM, τ = −b I_W ω
-                    self._damp(body, mass, moments, b_lin, b_ang)
-                p.stepSimulation(physicsClientId=cid)
+                if splitter is not None:  # split at the sphere's time of impact when it falls in this sub-step
+                    self._split_substep(splitter, cons, ee_path[j], h, body, mass, moments, b_lin, b_ang)
+                else:
+                    if ee_path is not None:
+                        p.changeConstraint(cons, ee_path[j].tolist(), maxForce=5000.0, physicsClientId=cid)
+                    if b_lin or b_ang:  # viscous: F = −m b v at the CoM, τ = −b I_W ω
+                        self._damp(body, mass, moments, b_lin, b_ang)
+                    p.stepSimulation(physicsClientId=cid)
                 if persist is not None and p.getContactPoints(bodyA=body, bodyB=table, physicsClientId=cid):
                     self._remake_manifold(body, table, persist)
                     persist = None
@@ -309,20 +348,23 @@ class BulletSimulator:
 
 def make_simulator(sim_substep_s: float = 0.002, contact_breaking_m: float | None = None,
                    contact_erp: float | None = None, sphere_drive: str = "lead",
-                   contact_persist_m: float | None = None, sphere_velocity_only: bool = False) -> BulletSimulator:
+                   contact_persist_m: float | None = None, sphere_velocity_only: bool = False,
+                   touch_split: bool = False) -> BulletSimulator:
     """The built-in simulator used when the caller injects none (``ResidualConfig.sim_substep_s``,
-    ``contact_breaking_m``, ``contact_erp``, ``sphere_drive``, ``contact_persist_m`` and ``sphere_velocity_only``)."""
+    ``contact_breaking_m``, ``contact_erp``, ``sphere_drive``, ``contact_persist_m``, ``sphere_velocity_only`` and
+    ``touch_split``)."""
     return BulletSimulator(sim_substep_s, contact_breaking_m=contact_breaking_m, contact_erp=contact_erp,
                            sphere_drive=sphere_drive, contact_persist_m=contact_persist_m,
-                           sphere_velocity_only=sphere_velocity_only)
+                           sphere_velocity_only=sphere_velocity_only, touch_split=touch_split)
 
 
 def simulator_for(cfg) -> BulletSimulator:
     """The loop's built-in simulator for the settings ``cfg`` (a ``ResidualConfig``): its sub-step, contact breaking
-    threshold, contact erp, sphere drive, contact persistence and velocity-only sphere contact. ``run`` uses it when the caller injects no simulator;
+    threshold, contact erp, sphere drive, contact persistence, velocity-only sphere contact and the sub-step split at
+    the touch. ``run`` uses it when the caller injects no simulator;
     diagnosis scripts replay with it so that their rollouts are the loop's."""
     return make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp, cfg.sphere_drive,
-                          cfg.contact_persist_m, cfg.sphere_velocity_only)
+                          cfg.contact_persist_m, cfg.sphere_velocity_only, cfg.touch_split)
 
 
 def service_sim_simulator(sim_cfg=None):

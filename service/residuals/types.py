@@ -164,6 +164,11 @@ class ResidualConfig:
     # sustained push then drifts into the object uncorrected, and the lab's push sessions lost their clock offset
     # (docs/residuals.md §7, "The launch kick")
     sphere_velocity_only: bool = False
+    # the built-in simulator's sub-step split at the time of impact of the robot sphere on the object (False = off):
+    # the contact starts at the touch (0.01 mm inside, Bullet's slop) instead of up to v h inside, so Bullet's push-out
+    # adds nothing to a strike's launch, and a sustained push keeps Bullet's law (docs/residuals.md §7, "A strike's
+    # contact that starts at the touch")
+    touch_split: bool = False
     contact_tol_m: float = 0.004  # gap below which the table counts as touching (mode classifier)
     rest_speed: float = 0.03  # m/s, below this (and touching) the object is at rest
     impact_dv: float = 0.3  # m/s, a velocity jump above this in one step while touching = impact
@@ -261,6 +266,8 @@ class ResidualConfig:
                              "Bullet's threshold only when the loop uses its own): set both or neither")
         if not isinstance(self.sphere_velocity_only, bool):
             raise ValueError(f"ResidualConfig.sphere_velocity_only must be a bool, not {self.sphere_velocity_only!r}")
+        if not isinstance(self.touch_split, bool):
+            raise ValueError(f"ResidualConfig.touch_split must be a bool, not {self.touch_split!r}")
         if self.contact_erp is not None and not 0.0 <= self.contact_erp <= 1.0:
             raise ValueError(f"ResidualConfig.contact_erp must be in [0, 1] or None, not {self.contact_erp!r}")
         if not (isinstance(self.folds, int) and self.folds >= 1):

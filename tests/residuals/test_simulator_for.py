@@ -12,6 +12,8 @@ def test_simulator_for_carries_the_settings():
         assert sim._contact_kw == {"contactERP": 0.1}
     with simulator_for(ResidualConfig(sphere_velocity_only=True)) as sim:
         assert sim.sphere_velocity_only
+    with simulator_for(ResidualConfig(touch_split=True)) as sim:
+        assert sim.touch_split
 
 
 def test_simulator_for_the_defaults_is_the_loops():
@@ -21,3 +23,4 @@ def test_simulator_for_the_defaults_is_the_loops():
         assert sim.sphere_drive == cfg.sphere_drive
         assert sim.contact_persist is None
         assert sim.sphere_velocity_only is cfg.sphere_velocity_only is False
+        assert sim.touch_split is cfg.touch_split is False

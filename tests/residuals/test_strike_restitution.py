@@ -78,6 +78,32 @@ def test_velocity_only_sphere_contact_launches_at_the_spheres_speed():
     assert kicked.max() > 1.03 * V, kicked
 
 
+def test_touch_split_launches_at_the_spheres_speed():
+    """With the sub-step split at the sphere's time of impact (``touch_split``, off by default) the contact starts at
+    the touch: the e = 0 launch is v in every phase (measured 1.0000 v; with Bullet's push-out of the overlap the
+    contact starts with, 1.001-1.059 v) and e = 0.3 gives 1.3 x that (1.2987-1.2996), with Bullet's law (its push-out)
+    kept for the contact once made."""
+    assert not ResidualConfig().touch_split
+    with BulletSimulator(0.002, contact_breaking_m=0.001, touch_split=True) as sim:
+        v0 = np.array([_launch_speed(sim, 0.0, g) for g in GAPS])
+        v3 = np.array([_launch_speed(sim, 0.3, g) for g in GAPS])
+    assert np.all(np.abs(v0 / V - 1.0) < 0.002), v0
+    assert np.all(np.abs(v3 / v0 - 1.3) < 0.005), v3 / v0
+
+
+def test_touch_split_keeps_a_path_that_touches_nothing():
+    """The split only acts at a touch: a sphere path that passes the cube is replayed bit for bit as without it."""
+    rt = np.arange(0.0, 0.6, 1e-3)
+    path = RobotPath(rt, np.stack([-0.1 + 0.5 * rt, np.full_like(rt, SIDE / 2 + R_SPHERE + 0.002),
+                                   np.full_like(rt, SIDE / 2)], 1), None, R_SPHERE)
+    t = np.arange(0.0, 0.5, 1 / 30)
+    X0 = make_X(np.eye(3), np.array([0.0, 0.0, SIDE / 2]))
+    req = SimRequest(cube_model(), X0, np.zeros(3), np.zeros(3), t, 0.0, path, {"friction_object_table": 0.3})
+    with BulletSimulator(0.002, contact_breaking_m=0.001, touch_split=True) as on, \
+            BulletSimulator(0.002, contact_breaking_m=0.001) as off:
+        assert np.array_equal(on(req), off(req))
+
+
 def test_contact_breaking_is_put_back_after_each_rollout():
     """Bullet's threshold is a process-wide global: a simulator with its own value leaves other worlds as they were."""
     gap = 0.0312
@@ -97,3 +123,5 @@ def test_contact_breaking_validated():
         ResidualConfig(contact_erp=1.5)
     with pytest.raises(ValueError, match="sphere_velocity_only"):
         ResidualConfig(sphere_velocity_only=1)
+    with pytest.raises(ValueError, match="touch_split"):
+        ResidualConfig(touch_split="on")

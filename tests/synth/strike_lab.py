@@ -13,6 +13,7 @@ import tempfile
 import numpy as np
 import pybullet as pb
 
+from service.sim.touch import TouchSplitter
 from service.synth import sim
 from service.synth.objects import make_object
 from service.transforms import make_X
@@ -21,7 +22,8 @@ H_LAB = 1.0 / 240.0  # s, the lab's physics step
 
 
 def lab_strike(v: float, e: float, phase: float, *, mu: float = 0.0, height: float | None = None,
-               run_up: float = sim.STRIKE_RUN_UP, breaking: float | None = None) -> tuple[float, float]:
+               run_up: float = sim.STRIKE_RUN_UP, breaking: float | None = None,
+               touches: list | None = None, substeps: int = 1) -> tuple[float, float]:
     """(approach, launch) in m/s: the sphere's speed in the step before the box first moves, and the box's largest
     CoM speed along the strike over the next 6 steps (its launch; on a frictionless table the speed it keeps).
 
@@ -30,12 +32,16 @@ def lab_strike(v: float, e: float, phase: float, *, mu: float = 0.0, height: flo
     ``phase`` x one step's travel); ``mu``: table friction; ``height``: contact height above the table (m; default the
     CoM's); ``breaking``: Bullet's contact breaking threshold for the whole world (a factor of each shape's bounding
     radius; None = Bullet's 0.02, the lab's). The sphere's settings are the lab's for ``interaction="strike"``
-    (``sim.STRIKE_CONTACT_PROCESSING_M``)."""
+    (``sim.STRIKE_CONTACT_PROCESSING_M``, ``sim.STRIKE_TOUCH_SPLIT``: with the step split at the time of impact,
+    ``touches`` (a list, when given) receives each split's (time into the step s, overlap m the contact starts with,
+    the sphere's speed at the touch m/s)). ``substeps``: physics steps per lab step (1: the lab's 240 Hz; more: a
+    reference nearer the continuous physics, the launch still read over 6 lab steps)."""
     obj = make_object("baking_box")
+    h = H_LAB / substeps
     cid = pb.connect(pb.DIRECT)
     tmp = tempfile.TemporaryDirectory(prefix="vysics-strike-")
     try:
-        sim.configure_world(cid, H_LAB, np.array([0.0, 0.0, -sim.GRAVITY]))
+        sim.configure_world(cid, h, np.array([0.0, 0.0, -sim.GRAVITY]))
         if breaking is not None:
             pb.setPhysicsEngineParameter(contactBreakingThreshold=breaking, physicsClientId=cid)
         table = sim.add_table(cid, 0.0, mu, 0.0)
@@ -51,7 +57,7 @@ def lab_strike(v: float, e: float, phase: float, *, mu: float = 0.0, height: flo
             sim.drive_sphere(cid, sphere, cmd, m_e, k_e, d_e, g)
             pb.stepSimulation(physicsClientId=cid)
 
-        for _ in range(int(0.5 / H_LAB)):  # settle
+        for _ in range(int(0.5 / h)):  # settle
             step(park)
         c = np.asarray(pb.getBasePositionAndOrientation(body, physicsClientId=cid)[0])
         half_x = 0.5 * float(np.ptp(np.asarray(obj.mesh.vertices)[:, 0]))
@@ -71,18 +77,29 @@ def lab_strike(v: float, e: float, phase: float, *, mu: float = 0.0, height: flo
 
         pb.resetBasePositionAndOrientation(sphere, start.tolist(), [0, 0, 0, 1], physicsClientId=cid)
         pb.resetBaseVelocity(sphere, [0, 0, 0], [0, 0, 0], physicsClientId=cid)
-        for _ in range(int(0.1 / H_LAB)):
+        for _ in range(int(0.1 / h)):
             step(start)
         vs, vb = [], []
-        for k in range(int((t1 + 0.1) / H_LAB)):
-            step(cmd(k * H_LAB))
+        def touched(tt: float) -> None:
+            if touches is not None:
+                cps = pb.getClosestPoints(sphere, body, 0.01, physicsClientId=cid)
+                v_touch = pb.getBaseVelocity(sphere, physicsClientId=cid)[0][0]
+                touches.append((tt, -min((c[8] for c in cps), default=np.inf), v_touch))
+
+        drive = lambda c: sim.drive_sphere(cid, sphere, c, m_e, k_e, d_e, g)  # noqa: E731
+        splitter = TouchSplitter(cid, sphere, body)
+        for k in range(int((t1 + 0.1) / h)):
+            if sim.STRIKE_TOUCH_SPLIT:  # the step split at the time of impact (the lab's strike_step)
+                sim.strike_step(splitter, h, lambda s: cmd(k * h + s), m_e, k_e, d_e, drive, touched)
+            else:
+                step(cmd(k * h))
             vs.append(pb.getBaseVelocity(sphere, physicsClientId=cid)[0][0])
             vb.append(pb.getBaseVelocity(body, physicsClientId=cid)[0][0])
         vs, vb = np.asarray(vs), np.asarray(vb)
         k0 = int(np.argmax(vb > 0.02))
         if vb[k0] <= 0.02 or k0 == 0:
             raise RuntimeError("the sphere did not strike the box")
-        return float(vs[k0 - 1]), float(vb[k0:k0 + 6].max())
+        return float(vs[k0 - 1]), float(vb[k0:k0 + 6 * substeps].max())
     finally:
         pb.disconnect(physicsClientId=cid)
         tmp.cleanup()
