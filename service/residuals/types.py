@@ -168,7 +168,7 @@ class ResidualConfig:
     # the contact starts at the touch (0.01 mm inside, Bullet's slop) instead of up to v h inside, so Bullet's push-out
     # adds nothing to a strike's launch, and a sustained push keeps Bullet's law (docs/residuals.md §7, "A strike's
     # contact that starts at the touch")
-    touch_split: bool = False
+    touch_split: bool = True
     contact_tol_m: float = 0.004  # gap below which the table counts as touching (mode classifier)
     rest_speed: float = 0.03  # m/s, below this (and touching) the object is at rest
     impact_dv: float = 0.3  # m/s, a velocity jump above this in one step while touching = impact
@@ -196,7 +196,7 @@ class ResidualConfig:
     launch_lead: int = 2  # frames of rest at the start of a launch block
     launch_max_s: float = 1.0  # longest launch block, s
     # window of the local quadratic fit that smooths the measured sphere path before the rollouts, s (0: off)
-    robot_smooth_s: float = 0.04
+    robot_smooth_s: float = 0.08
     # the weights of that fit (ROBOT_SMOOTH_WEIGHTS; docs/residuals.md §7, "The sphere path's velocity noise at the
     # launch"): "box" (Savitzky-Golay, equal weights; before, over 0.04 s) or "biweight" (weights vanishing smoothly at
     # the window's edges: still exact for a constant acceleration, and the path's sample-to-sample increments, the
@@ -205,7 +205,7 @@ class ResidualConfig:
     # "box" over 0.04 s with the lead drive: "biweight" over 0.08 s with the inverse drive was measured (strikes
     # 681-690: 27 -> 30 of 30) but with contact_breaking_m = 1 mm took a table friction for the damping on the strike
     # test session (docs/residuals.md §7, "Both replay settings together")
-    robot_smooth_weights: str = "box"
+    robot_smooth_weights: str = "biweight"
     # how the built-in simulator drags the sphere along the measured path (simulate.SPHERE_DRIVES; docs/residuals.md
     # §6 and §7, "Linear damping fitted low on strikes"): "lead" reads the path the constraint's steady lag ahead (exact
     # at a constant velocity; at a strike's brake the sphere rounds its speed peak and launches the object 1.5-2.5 %
@@ -213,7 +213,7 @@ class ResidualConfig:
     # sphere is on its path at every sub-step; with the biweight path above its launches are within 1 % of the exact
     # replay on noisy strikes (docs/residuals.md §7, "The sphere path's velocity noise at the launch"). Default "lead"
     # (off: "Both replay settings together")
-    sphere_drive: str = "lead"
+    sphere_drive: str = "inverse"
     # K-fold cross-fitting of the held-out test (docs/residuals.md §4): 1 = one seeded split (half the units held
     # out); K >= 2 = every unit (toss, or block of one session) held out exactly once, the corrections and the
     # candidates fitted on the complement of each fold, rules 1-7 applied to the union of the folds' held-out errors, then

@@ -108,7 +108,7 @@ STRIKE_CONTACT_STIFFNESS_DAMPING: tuple[float, float] | None = None
 # Measured: the isolated strike's launch is the same strike stepped 16 times finer within 0.8 % (touch mode: up to 6 %
 # fast). Off by default: with the residual loop's default drive the strike test's hidden damping is then fitted
 # 1.42 /s for 2.0 (docs/residuals.md §7, "A strike's contact that starts at the touch").
-STRIKE_TOUCH_SPLIT: bool = False
+STRIKE_TOUCH_SPLIT: bool = True
 
 
 def controller(interaction: str) -> tuple[float, float, float]:
