@@ -131,8 +131,8 @@ def _sim_settings(args) -> dict:
         out[field] = getattr(ResidualConfig, field) if v is None else (None if v == "off" else v)
     if getattr(args, "sphere_velocity_only", False):  # no push-out of the sphere's overlap (off by default)
         out["sphere_velocity_only"] = True
-    if getattr(args, "touch_split", False):  # the sub-step split at the sphere's time of impact (off by default)
-        out["touch_split"] = True
+    if getattr(args, "touch_split", None) is not None:  # the sub-step split at the sphere's time of impact (on by default)
+        out["touch_split"] = args.touch_split
     return out
 
 
@@ -433,10 +433,13 @@ def strike(args) -> None:
     from service.synth.types import HiddenEffects, SynthSpec
     from tests.residuals.synthlab import lab_session, perturbed_model
 
-    if args.lab_strike_contact != "bullet":  # the lab's default: every sphere-object contact point as Bullet makes it
+    if args.lab_strike_contact is not None:  # None: the lab's default (sim.STRIKE_TOUCH_SPLIT, on)
         from service.synth import sim as lab_sim
 
-        if args.lab_strike_contact == "split":  # the step split at the time of impact (§7, "A strike's contact ...")
+        lab_sim.STRIKE_TOUCH_SPLIT = False  # 'bullet': every sphere-object contact point as Bullet makes it
+        if args.lab_strike_contact == "bullet":
+            pass
+        elif args.lab_strike_contact == "split":  # the step split at the time of impact (§7, "A strike's contact ...")
             lab_sim.STRIKE_TOUCH_SPLIT = True
         else:
             lab_sim.STRIKE_CONTACT_PROCESSING_M = lab_sim.STRIKE_TOUCH_PROCESSING_M  # solved from the touch on
@@ -592,9 +595,9 @@ def main() -> None:
                          "--robot-smooth 0.08")
     st.add_argument("--robot-smooth", type=float, default=None, metavar="S",
                     help="window of that fit in s (ResidualConfig.robot_smooth_s; default: the config's, 0.04)")
-    st.add_argument("--lab-strike-contact", choices=("bullet", "touch", "velocity", "split"), default="bullet",
-                    help="the lab's sphere-object contact in its strike sessions: every point as Bullet makes it "
-                         "('bullet', the lab's default, which loses about a third of its bounces), solved from the touch "
+    st.add_argument("--lab-strike-contact", choices=("bullet", "touch", "velocity", "split"), default=None,
+                    help="the lab's sphere-object contact in its strike sessions (default: the lab's, 'split'): every "
+                         "point as Bullet makes it ('bullet', which loses about a third of its bounces), solved from the touch "
                          "on ('touch': service.synth.sim.STRIKE_TOUCH_PROCESSING_M; the bounces kept, launches up to 7 "
                          "%% fast), or also at the velocity level only ('velocity': no push-out of the overlap, "
                          "sim.STRIKE_VELOCITY_ONLY), or with the step split at the time of impact ('split': "
@@ -626,9 +629,10 @@ def main() -> None:
         sp.add_argument("--sphere-velocity-only", action="store_true",
                         help="the robot sphere's contact solved at the velocity level only (ResidualConfig."
                              "sphere_velocity_only, off by default; docs/residuals.md §7 'The launch kick')")
-        sp.add_argument("--touch-split", action="store_true",
+        sp.add_argument("--touch-split", action=argparse.BooleanOptionalAction, default=None,
                         help="the loop's sub-step split at the robot sphere's time of impact (ResidualConfig.touch_split, "
-                             "off by default; docs/residuals.md §7 'A strike's contact that starts at the touch')")
+                             "on by default; --no-touch-split: off; docs/residuals.md §7 'A strike's contact that starts "
+                             "at the touch')")
         sp.add_argument("--contact-persist", default=None, metavar="M", type=off_or_float,
                         help="threshold of the object-table manifold re-made at the first touch in m, or 'off' "
                              "(ResidualConfig.contact_persist_m, docs/residuals.md §7 'Resting contact ...')")

@@ -23,4 +23,4 @@ def test_simulator_for_the_defaults_is_the_loops():
         assert sim.sphere_drive == cfg.sphere_drive
         assert sim.contact_persist is None
         assert sim.sphere_velocity_only is cfg.sphere_velocity_only is False
-        assert sim.touch_split is cfg.touch_split is False
+        assert sim.touch_split is cfg.touch_split is True

@@ -69,10 +69,10 @@ def test_inverse_drive_hands_a_struck_cube_the_sphere_speed():
 
 
 def test_sphere_drive_setting():
-    # the loop's default: the lead drive on the Savitzky-Golay path over 0.04 s (the inverse drive on the biweight path
-    # is measured and off, docs/residuals.md §7); the simulator built alone keeps the lead
+    # the loop's default: the inverse drive on the biweight path over 0.08 s, with the touch split (docs/residuals.md §7,
+    # "The split and the inverse drive together"); the simulator built alone keeps the lead
     cfg = ResidualConfig()
-    assert (cfg.sphere_drive, cfg.robot_smooth_weights, cfg.robot_smooth_s) == ("lead", "box", 0.04)
+    assert (cfg.sphere_drive, cfg.robot_smooth_weights, cfg.robot_smooth_s) == ("inverse", "biweight", 0.08)
     assert make_simulator().sphere_drive == "lead"
     with pytest.raises(ValueError, match="sphere_drive"):
         ResidualConfig(sphere_drive="exact")

@@ -79,11 +79,11 @@ def test_velocity_only_sphere_contact_launches_at_the_spheres_speed():
 
 
 def test_touch_split_launches_at_the_spheres_speed():
-    """With the sub-step split at the sphere's time of impact (``touch_split``, off by default) the contact starts at
+    """With the sub-step split at the sphere's time of impact (``touch_split``, on by default) the contact starts at
     the touch: the e = 0 launch is v in every phase (measured 1.0000 v; with Bullet's push-out of the overlap the
     contact starts with, 1.001-1.059 v) and e = 0.3 gives 1.3 x that (1.2987-1.2996), with Bullet's law (its push-out)
     kept for the contact once made."""
-    assert not ResidualConfig().touch_split
+    assert ResidualConfig().touch_split
     with BulletSimulator(0.002, contact_breaking_m=0.001, touch_split=True) as sim:
         v0 = np.array([_launch_speed(sim, 0.0, g) for g in GAPS])
         v3 = np.array([_launch_speed(sim, 0.3, g) for g in GAPS])

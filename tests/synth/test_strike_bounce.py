@@ -1,7 +1,8 @@
 """The synthetic lab's strikes bounce as declared: the 10 kg sphere strikes a resting baking box through its CoM on a
 frictionless table, in the lab's own world (``tests/synth/strike_lab.py``), with the touch at six places within a
-physics step. A heavy striker launches the box at (1 + e) x the launch with e = 0 in every phase. With every contact
-point solved as Bullet makes it (``STRIKE_CONTACT_PROCESSING_M = None``, the lab's default) the point is made while
+physics step. A heavy striker launches the box at (1 + e) x the launch with e = 0 in every phase. The lab's default is
+the step split at the time of impact (``STRIKE_TOUCH_SPLIT``); the other contacts are tested with it off. With every
+contact point solved as Bullet makes it (``STRIKE_CONTACT_PROCESSING_M = None``) the point is made while
 the gap is still open and the bounce is lost in some phases (here 3 of the 6); solved from the touch on
 (``STRIKE_TOUCH_PROCESSING_M``, off by default) it is kept in all (docs/residuals.md §7, "The synthetic lab's
 strikes"). The contact then starts inside the box by up to v h; with Bullet's push-out of that overlap launches run up
@@ -36,6 +37,7 @@ def _ratios() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def test_lab_strike_launches_with_the_declared_restitution_in_every_phase(monkeypatch):
     assert sim.STRIKE_CONTACT_PROCESSING_M is None  # off by default
     assert sim.STRIKE_CONTACT_STIFFNESS_DAMPING is None  # the push-out is Bullet's (off by default)
+    monkeypatch.setattr(sim, "STRIKE_TOUCH_SPLIT", False)  # the contact solved from the touch on, the step not split
     monkeypatch.setattr(sim, "STRIKE_CONTACT_PROCESSING_M", sim.STRIKE_TOUCH_PROCESSING_M)
     q, launch, launch0 = _ratios()
     assert np.all(np.abs(q - (1.0 + E)) < 0.03), q  # measured 1.280-1.297
@@ -49,6 +51,7 @@ def test_velocity_only_strike_launches_at_the_heavy_strikers_speed(monkeypatch):
     """Solved at the velocity level only, the contact adds no push-out of the overlap it starts with: the launch is the
     heavy striker's within 1 % in every phase (e = 0: 0.964-0.971 for 0.971; e = 0.3: 1.253-1.260 for 1.262) and the
     bounce ratio 1.3 within 0.01 (1.298-1.300)."""
+    monkeypatch.setattr(sim, "STRIKE_TOUCH_SPLIT", False)
     monkeypatch.setattr(sim, "STRIKE_CONTACT_PROCESSING_M", sim.STRIKE_TOUCH_PROCESSING_M)
     monkeypatch.setattr(sim, "STRIKE_CONTACT_STIFFNESS_DAMPING", sim.STRIKE_VELOCITY_ONLY)
     q, launch, launch0 = _ratios()
@@ -58,13 +61,12 @@ def test_velocity_only_strike_launches_at_the_heavy_strikers_speed(monkeypatch):
 
 
 def test_split_strike_starts_at_the_touch_and_launches_as_the_physics(monkeypatch):
-    """With the step split at the time of impact (``STRIKE_TOUCH_SPLIT``, off by default) the contact starts 0.01 mm
+    """With the step split at the time of impact (``STRIKE_TOUCH_SPLIT``, on by default) the contact starts 0.01 mm
     inside the box (Bullet's slop; the lab's step otherwise starts it up to v h = 1.6 mm inside) and the launch is the
     same strike's stepped four times finer within 1 % (measured 0.994-1.000 for e = 0 and 0.3; the contact solved from
     the touch without the split: up to 5 % above), and the bounce ratio near 1.3 (1.291-1.296; the sphere's drive
     pushes on after the impact, so it is not exactly 1 + e)."""
-    assert sim.STRIKE_TOUCH_SPLIT is False  # off by default
-    monkeypatch.setattr(sim, "STRIKE_TOUCH_SPLIT", True)
+    assert sim.STRIKE_TOUCH_SPLIT is True  # on by default
     phases = PHASES[::2]
     out = {}
     for e in (0.0, E):
@@ -79,6 +81,7 @@ def test_split_strike_starts_at_the_touch_and_launches_as_the_physics(monkeypatc
 
 
 def test_bullets_default_loses_the_bounce_in_some_phases(monkeypatch):
+    monkeypatch.setattr(sim, "STRIKE_TOUCH_SPLIT", False)
     monkeypatch.setattr(sim, "STRIKE_CONTACT_PROCESSING_M", None)
     q, _, _ = _ratios()
     assert int((q < 1.0 + 0.7 * E).sum()) >= 2, q  # measured 1.17, 0.94, 1.08 in three of the six
@@ -86,7 +89,9 @@ def test_bullets_default_loses_the_bounce_in_some_phases(monkeypatch):
 
 def test_push_spheres_keep_bullets_default(monkeypatch):
     """The setting is the strike's: a push sphere's contact is solved as Bullet makes it (push, pivot and topple sessions
-    are unchanged; their contacts are sustained, not impacts)."""
+    are unchanged; their contacts are sustained, not impacts). Checked with the split off (every point as Bullet makes
+    it: nothing set), with the split (the default: the strike sphere's threshold 0), and with the velocity-only law."""
+    monkeypatch.setattr(sim, "STRIKE_TOUCH_SPLIT", False)
     import pybullet as pb
 
     calls = []
