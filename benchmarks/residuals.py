@@ -587,14 +587,14 @@ def main() -> None:
                          "frames of every block where it acts (what the data can show)")
     st.add_argument("--sphere-drive", choices=("lead", "inverse"), default=None,
                     help="how the rollouts drag the sphere along the measured path (ResidualConfig.sphere_drive, "
-                         "docs/residuals.md §6): lead (the config's default) or inverse (the constraint's update inverted)")
+                         "docs/residuals.md §6): lead or inverse (the constraint's update inverted, the config's default)")
     st.add_argument("--robot-smooth-weights", choices=("box", "biweight"), default=None,
                     help="weights of the local quadratic fit that smooths the measured sphere path "
-                         "(ResidualConfig.robot_smooth_weights, docs/residuals.md §7): box (Savitzky-Golay, the config's default) or "
-                         "biweight; the measured alternative: --sphere-drive inverse --robot-smooth-weights biweight "
-                         "--robot-smooth 0.08")
+                         "(ResidualConfig.robot_smooth_weights, docs/residuals.md §7): box (Savitzky-Golay) or biweight (the "
+                         "config's default); the former defaults: --sphere-drive lead --robot-smooth-weights box "
+                         "--robot-smooth 0.04")
     st.add_argument("--robot-smooth", type=float, default=None, metavar="S",
-                    help="window of that fit in s (ResidualConfig.robot_smooth_s; default: the config's, 0.04)")
+                    help="window of that fit in s (ResidualConfig.robot_smooth_s; default: the config's, 0.08)")
     st.add_argument("--lab-strike-contact", choices=("bullet", "touch", "velocity", "split"), default=None,
                     help="the lab's sphere-object contact in its strike sessions (default: the lab's, 'split'): every "
                          "point as Bullet makes it ('bullet', which loses about a third of its bounces), solved from the touch "

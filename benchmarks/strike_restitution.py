@@ -197,7 +197,7 @@ def _lab_rest(breaking: float | None, margin: float, tilt: float) -> tuple:
 
     from service.synth import sim
     from service.synth.objects import make_object
-    from service.transforms import make_X, mat_to_quat, so3_exp
+    from service.transforms import make_X, mat_to_quat, quat_to_xyzw, so3_exp
 
     h = 1.0 / 240.0
     obj = make_object("baking_box")
@@ -219,7 +219,7 @@ def _lab_rest(breaking: float | None, margin: float, tilt: float) -> tuple:
             R0 = np.array(p.getMatrixFromQuaternion(q0)).reshape(3, 3)
             q = mat_to_quat(so3_exp(np.array([tilt, 0.0, 0.0])) @ R0)
             p.resetBasePositionAndOrientation(body, [ps[0], ps[1], ps[2] + 0.0325 * abs(np.sin(tilt)) + 0.0005],
-                                              [q[1], q[2], q[3], q[0]], physicsClientId=cid)
+                                              quat_to_xyzw(q), physicsClientId=cid)
         else:  # the lab's settling
             p.changeDynamics(body, -1, linearDamping=0.9, angularDamping=0.9, physicsClientId=cid)
             for _ in range(int(0.8 / h)):
@@ -334,7 +334,8 @@ def main() -> None:
                     help="the lab's sphere-object contact: from the touch on, from the touch on at the velocity level "
                          "only (no push-out of the overlap), or as Bullet makes it (the lab's default)")
     bl.add_argument("--touch-split", action="store_true",
-                    help="the loop's sub-step split at the sphere's time of impact (ResidualConfig.touch_split)")
+                    help="the loop's sub-step split at the sphere's time of impact (ResidualConfig.touch_split; on in the "
+                         "loop by default, off in this sweep unless given)")
     lb = sub.add_parser("lab")
     lb.add_argument("--speeds", type=positive_float, nargs="+", default=[0.4, 0.55, 0.7], help="commanded strike speeds, m/s")
     lb.add_argument("--phases", type=positive_int, default=12)

@@ -5,7 +5,7 @@ import pybullet as pb
 import pytest
 
 from service.synth.camera import backproject, gl_projection_matrix, gl_view_matrix, intrinsics, linearize_depth, look_at
-from service.transforms import mat_to_quat, so3_exp
+from service.transforms import mat_to_quat, quat_to_xyzw, so3_exp
 
 
 def _render(cid, K, X_WC, W, H):
@@ -20,7 +20,7 @@ def plane_scene():
     R = so3_exp(np.array([0.45, -0.3, 0.2]))
     q = mat_to_quat(R)
     v = pb.createVisualShape(pb.GEOM_BOX, halfExtents=[1.0, 1.0, 0.01], physicsClientId=cid)
-    pb.createMultiBody(0, -1, v, [0.5, 0.0, 0.0], [q[1], q[2], q[3], q[0]], physicsClientId=cid)
+    pb.createMultiBody(0, -1, v, [0.5, 0.0, 0.0], quat_to_xyzw(q), physicsClientId=cid)
     n = R[:, 2]
     p0 = np.array([0.5, 0.0, 0.0]) + 0.01 * n
     yield cid, n, p0
