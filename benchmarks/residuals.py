@@ -455,7 +455,8 @@ def strike(args) -> None:
             c0 = resource.getrusage(resource.RUSAGE_SELF).ru_utime
             ls = lab_session(SynthSpec(object=args.object, interaction="strike", seed=seed, preset="tiny",
                                        n_frames=args.frames, friction_object_table=args.mu,
-                                       effects=HiddenEffects(**hidden)),
+                                       effects=HiddenEffects(**hidden),
+                                       **({} if args.physics_hz is None else {"physics_hz": args.physics_hz})),
                              pose_noise_m=args.pose_noise, pose_noise_rad=10.0 * args.pose_noise)
             cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, seed=seed,
                                       fit_maxiter=24, max_train_segments=10,
@@ -578,6 +579,9 @@ def main() -> None:
     st.add_argument("--object", default="baking_box")
     st.add_argument("--frames", type=int, default=900)
     st.add_argument("--mu", type=float, default=0.15)
+    st.add_argument("--physics-hz", type=float, default=None,
+                    help="the lab's physics rate in Hz (SynthSpec.physics_hz, a multiple of the 30 Hz frame rate; "
+                         "default: the spec's, 240); docs/residuals.md §7 'Angular damping on strikes'")
     st.add_argument("--candidates", nargs="+", default=None,
                     help="candidate effects for every case (default: each case's own: its effect and two look-alikes)")
     st.add_argument("--pose-noise", type=float, default=5e-4,
