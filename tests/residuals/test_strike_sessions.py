@@ -103,6 +103,25 @@ def test_hidden_robot_friction_in_strike_session():
     assert out.model.friction.object_table == MU
 
 
+def test_hidden_restitution_in_strike_session():
+    # restitution 0.3 (declared 0): the box leaves a strike at (1 + e) times the sphere's speed, so every slide is
+    # longer and faster at the start. Its look-alikes change the launch or the slide after it in the same direction:
+    # a lower table friction lengthens every slide; a larger object-robot friction adds tangential impulse at a
+    # glancing strike (speed, spin, heading). Judged where restitution acts: every frame from a block's first strike on
+    truth = 0.3
+    out = _loop({"restitution": truth}, ("restitution", "friction_table", "friction_robot"))
+    assert out.accepted == ("restitution",), [c.reason for c in out.candidates]
+    cand = next(c for c in out.candidates if c.effect == "restitution")
+    assert cand.acts_on["modes"] == ["impact", "robot_contact"]
+    assert cand.heldout_acting_after <= 0.6 * cand.heldout_acting_before
+    assert out.error_after["scalar_m"] < out.error_before["scalar_m"]
+    assert abs(out.effects["restitution"] - truth) <= 0.25 * truth
+    # carried by the model the simulator is given: its effects, nothing else changed
+    assert out.model.effects["restitution"] == pytest.approx(out.effects["restitution"])
+    assert out.model.friction.object_table == MU
+    assert out.model.friction.object_robot == pytest.approx(0.15)
+
+
 def test_plain_strike_session_accepts_nothing():
     out = _loop({}, ("friction_table", "linear_damping", "table_tilt"))
     assert out.accepted == (), [c.reason for c in out.candidates]
