@@ -14,7 +14,7 @@ inertia m s²/6), table at z = 0, no robot. Tosses are split into training and h
     python benchmarks/residuals.py synthetic [--seeds 1 2 3 4 5] [--toss-contact-breaking M|off]
     python benchmarks/residuals.py lab [--seeds 601 602] [--cases none clock_offset ...] [--exact-model]
     python benchmarks/residuals.py strike [--seeds 601 602] [--cases none friction tilt ...] [--candidates ...]
-        [--true-split] [--pose-noise 0]
+        [--true-split [--per-block]] [--pose-noise 0]
 
 Every subcommand takes ``--folds K`` (K-fold cross-fitting of the held-out test, docs/residuals.md §4; 1 = one
 split, the benchmark's default, so that its recorded tables keep their meaning; the service's default,
@@ -386,13 +386,24 @@ def _print_lookalikes(out) -> None:
                 break
 
 
-def _true_split(ls, model, name, truth, cfg) -> str:
+def _peak_launch(X: np.ndarray, t: np.ndarray, k0: int) -> float:
+    """Peak horizontal frame speed (m/s) of poses X (T,4,4) W at times t (T,) s over the frames around a block's
+    first frame ``k0`` where the effect acts (from the frame before it to 4 frames after): the launch of a strike."""
+    v = np.linalg.norm(np.diff(X[:, :2, 3], axis=0), axis=1) / np.diff(t)
+    return float(np.nanmax(v[max(k0 - 1, 0):k0 + 4]))
+
+
+def _true_split(ls, model, name, truth, cfg, per_block: bool = False) -> str:
     """Block errors of the declared model and of the model with the hidden effect at its *true* value, on the
     effect's frames of every block (training and held-out) where it acts: how much the data can show the effect at
-    all, whatever the fit and the held-out test do (the loop's own blocks, start states and simulator)."""
+    all, whatever the fit and the held-out test do (the loop's own blocks, start states and simulator). With
+    ``per_block``, one line per block as well: its start (s), its robot-contact frames, the observed launch (peak
+    horizontal frame speed around the first frame where the effect acts, m/s), the launch of the true model's rollout
+    over the declared one's, and the two block errors (mm) with the relative fall (b - a) / max(b, a), the unit statistic
+    of the held-out test (docs/residuals.md §4)."""
     from service.residuals.effects import REGISTRY, apply_effects
     from service.residuals.loop import Evaluator, effect_mask, make_segments, reduce_blocks, smooth_robot
-    from service.residuals.modes import classify, object_radius
+    from service.residuals.modes import MODES, classify, object_radius
     from service.residuals.simulate import simulator_for
     from service.residuals.types import ResidualInputs
 
@@ -410,12 +421,23 @@ def _true_split(ls, model, name, truth, cfg) -> str:
         m1, e1 = apply_effects(model, {name: theta})
         b = reduce_blocks(ev.frame_scalar(model, dict(model.effects), segs), masks)
         a = reduce_blocks(ev.frame_scalar(m1, {**model.effects, **e1}, segs), masks)
+        lines = []
+        if per_block:
+            rc = MODES.index("robot_contact")
+            for sg, m, eb, ea in zip(segs, masks, b, a):
+                k0 = int(np.flatnonzero(m)[0])
+                obs = _peak_launch(sg.X_obs, sg.t, k0)
+                l0 = _peak_launch(ev.rollout(model, dict(model.effects), sg), sg.t, k0)
+                l1 = _peak_launch(ev.rollout(m1, {**model.effects, **e1}, sg), sg.t, k0)
+                lines.append(f"\n    block at {sg.t[0]:6.2f} s: robot-contact frames {int(np.sum(sg.mode == rc))}, "
+                             f"observed launch {obs:.3f} m/s, true/declared launch {l1 / l0:.3f}, block error "
+                             f"{eb * 1e3:6.2f} -> {ea * 1e3:6.2f} mm ({(eb - ea) / max(eb, ea):+.2f})")
     finally:
         sim.close()
     d = b - a
     return (f"true-model split on {len(segs)} blocks where {name} acts ({int(sum(m.sum() for m in masks))} frames): "
             f"declared {np.nanmean(b) * 1e3:.2f} mm -> true {np.nanmean(a) * 1e3:.2f} mm, better/worse "
-            f"{int(np.sum(d > 0))}/{int(np.sum(d < 0))}, median relative fall {np.nanmedian(d / b):+.0%}")
+            f"{int(np.sum(d > 0))}/{int(np.sum(d < 0))}, median relative fall {np.nanmedian(d / b):+.0%}" + "".join(lines))
 
 
 def strike(args) -> None:
@@ -466,7 +488,7 @@ def strike(args) -> None:
                 if args.learned_model else perturbed_model(ls)
             if args.true_split:
                 if name:
-                    print(f"{case:15s} seed {seed}: {_true_split(ls, model, name, truth, cfg)}", flush=True)
+                    print(f"{case:15s} seed {seed}: {_true_split(ls, model, name, truth, cfg, args.per_block)}", flush=True)
                 continue
             out = run(ResidualInputs(model, (ls.trajectory,), ls.table_height, robot=(ls.robot,)), cfg)
             sb = out.by_mode["rollout_before"]["sliding"]["pos_err_m"]
@@ -585,6 +607,9 @@ def main() -> None:
     st.add_argument("--true-split", action="store_true",
                     help="no loop: the block errors of the declared model and of the true effect value, on the effect's "
                          "frames of every block where it acts (what the data can show)")
+    st.add_argument("--per-block", action="store_true",
+                    help="with --true-split: one line per block (its robot-contact frames, the observed launch speed, "
+                         "the true model's launch over the declared one's, the two block errors)")
     st.add_argument("--sphere-drive", choices=("lead", "inverse"), default=None,
                     help="how the rollouts drag the sphere along the measured path (ResidualConfig.sphere_drive, "
                          "docs/residuals.md §6): lead or inverse (the constraint's update inverted, the config's default)")
@@ -644,6 +669,8 @@ def main() -> None:
         ap.error(f"--robot-smooth: expected a finite window >= 0 s, got {args.robot_smooth}")
     if getattr(args, "pose_noise", 0.0) < 0:
         ap.error(f"--pose-noise: expected a noise level >= 0 m, got {args.pose_noise}")
+    if getattr(args, "per_block", False) and not args.true_split:
+        ap.error("--per-block: only with --true-split")
     # the simulator flags' values checked by the config's own validation (range, NaN), each naming its flag
     from service.residuals.types import ResidualConfig
 
