@@ -94,7 +94,7 @@ def _config_json(text: str) -> dict:
     unknown = sorted(set(cfg) - {f.name for f in dataclasses.fields(ResidualConfig)})
     if unknown:
         raise argparse.ArgumentTypeError(f"not ResidualConfig fields: {', '.join(unknown)}")
-    clash = sorted(set(cfg) & {"contact_breaking_m", "contact_erp", "contact_persist_m", "candidates", "folds", "unit_statistic",
+    clash = sorted(set(cfg) & {"contact_breaking_m", "contact_erp", "contact_persist_m", "restitution_threshold_mps", "candidates", "folds", "unit_statistic",
                                "lookalike_check", "lookalike_refute", "max_train_segments", "fit_maxiter", "seed"})
     if clash:
         raise argparse.ArgumentTypeError(f"set by the benchmark or its own flags, not by --config: {', '.join(clash)}")
@@ -133,6 +133,8 @@ def _sim_settings(args) -> dict:
         out["sphere_velocity_only"] = True
     if getattr(args, "touch_split", None) is not None:  # the sub-step split at the sphere's time of impact (on by default)
         out["touch_split"] = args.touch_split
+    if getattr(args, "restitution_threshold", None) is not None:  # no bounce below this closing speed (default 0.05)
+        out["restitution_threshold_mps"] = args.restitution_threshold
     return out
 
 
@@ -661,6 +663,10 @@ def main() -> None:
         sp.add_argument("--contact-persist", default=None, metavar="M", type=off_or_float,
                         help="threshold of the object-table manifold re-made at the first touch in m, or 'off' "
                              "(ResidualConfig.contact_persist_m, docs/residuals.md §7 'Resting contact ...')")
+        sp.add_argument("--restitution-threshold", default=None, metavar="V", type=float,
+                        help="relative normal speed in m/s below which the loop's simulator gives a contact no bounce "
+                             "(ResidualConfig.restitution_threshold_mps; default: the config's, 0.05; the synthetic "
+                             "lab keeps Bullet's 0.2; docs/residuals.md §7 'Restitution on strikes as a test')")
     args = ap.parse_args()
     # refused before any session is made (naming the flag), not by a traceback from the loop's config
     if args.folds < 1:
@@ -682,6 +688,11 @@ def main() -> None:
                 ResidualConfig(**{field: v})
             except ValueError as e:
                 ap.error(f"--{flag.replace('_', '-')}: {e}")
+    if getattr(args, "restitution_threshold", None) is not None:
+        try:
+            ResidualConfig(restitution_threshold_mps=args.restitution_threshold)
+        except ValueError as e:
+            ap.error(f"--restitution-threshold: {e}")
     if getattr(args, "candidates", None):
         from service.residuals.effects import REGISTRY
 
