@@ -14,7 +14,7 @@ inertia m s²/6), table at z = 0, no robot. Tosses are split into training and h
     python benchmarks/residuals.py synthetic [--seeds 1 2 3 4 5] [--toss-contact-breaking M|off]
     python benchmarks/residuals.py lab [--seeds 601 602] [--cases none clock_offset ...] [--exact-model]
     python benchmarks/residuals.py strike [--seeds 601 602] [--cases none friction tilt ...] [--candidates ...]
-        [--true-split] [--pose-noise 0]
+        [--true-split [--per-block]] [--pose-noise 0]
 
 Every subcommand takes ``--folds K`` (K-fold cross-fitting of the held-out test, docs/residuals.md §4; 1 = one
 split, the benchmark's default, so that its recorded tables keep their meaning; the service's default,
@@ -94,7 +94,7 @@ def _config_json(text: str) -> dict:
     unknown = sorted(set(cfg) - {f.name for f in dataclasses.fields(ResidualConfig)})
     if unknown:
         raise argparse.ArgumentTypeError(f"not ResidualConfig fields: {', '.join(unknown)}")
-    clash = sorted(set(cfg) & {"contact_breaking_m", "contact_erp", "contact_persist_m", "candidates", "folds", "unit_statistic",
+    clash = sorted(set(cfg) & {"contact_breaking_m", "contact_erp", "contact_persist_m", "restitution_threshold_mps", "candidates", "folds", "unit_statistic",
                                "lookalike_check", "lookalike_refute", "max_train_segments", "fit_maxiter", "seed"})
     if clash:
         raise argparse.ArgumentTypeError(f"set by the benchmark or its own flags, not by --config: {', '.join(clash)}")
@@ -133,6 +133,8 @@ def _sim_settings(args) -> dict:
         out["sphere_velocity_only"] = True
     if getattr(args, "touch_split", None) is not None:  # the sub-step split at the sphere's time of impact (on by default)
         out["touch_split"] = args.touch_split
+    if getattr(args, "restitution_threshold", None) is not None:  # no bounce below this closing speed (default 0.05)
+        out["restitution_threshold_mps"] = args.restitution_threshold
     return out
 
 
@@ -386,13 +388,24 @@ def _print_lookalikes(out) -> None:
                 break
 
 
-def _true_split(ls, model, name, truth, cfg) -> str:
+def _peak_launch(X: np.ndarray, t: np.ndarray, k0: int) -> float:
+    """Peak horizontal frame speed (m/s) of poses X (T,4,4) W at times t (T,) s over the frames around a block's
+    first frame ``k0`` where the effect acts (from the frame before it to 4 frames after): the launch of a strike."""
+    v = np.linalg.norm(np.diff(X[:, :2, 3], axis=0), axis=1) / np.diff(t)
+    return float(np.nanmax(v[max(k0 - 1, 0):k0 + 4]))
+
+
+def _true_split(ls, model, name, truth, cfg, per_block: bool = False) -> str:
     """Block errors of the declared model and of the model with the hidden effect at its *true* value, on the
     effect's frames of every block (training and held-out) where it acts: how much the data can show the effect at
-    all, whatever the fit and the held-out test do (the loop's own blocks, start states and simulator)."""
+    all, whatever the fit and the held-out test do (the loop's own blocks, start states and simulator). With
+    ``per_block``, one line per block as well: its start (s), its robot-contact frames, the observed launch (peak
+    horizontal frame speed around the first frame where the effect acts, m/s), the launch of the true model's rollout
+    over the declared one's, and the two block errors (mm) with the relative fall (b - a) / max(b, a), the unit statistic
+    of the held-out test (docs/residuals.md §4)."""
     from service.residuals.effects import REGISTRY, apply_effects
     from service.residuals.loop import Evaluator, effect_mask, make_segments, reduce_blocks, smooth_robot
-    from service.residuals.modes import classify, object_radius
+    from service.residuals.modes import MODES, classify, object_radius
     from service.residuals.simulate import simulator_for
     from service.residuals.types import ResidualInputs
 
@@ -410,12 +423,23 @@ def _true_split(ls, model, name, truth, cfg) -> str:
         m1, e1 = apply_effects(model, {name: theta})
         b = reduce_blocks(ev.frame_scalar(model, dict(model.effects), segs), masks)
         a = reduce_blocks(ev.frame_scalar(m1, {**model.effects, **e1}, segs), masks)
+        lines = []
+        if per_block:
+            rc = MODES.index("robot_contact")
+            for sg, m, eb, ea in zip(segs, masks, b, a):
+                k0 = int(np.flatnonzero(m)[0])
+                obs = _peak_launch(sg.X_obs, sg.t, k0)
+                l0 = _peak_launch(ev.rollout(model, dict(model.effects), sg), sg.t, k0)
+                l1 = _peak_launch(ev.rollout(m1, {**model.effects, **e1}, sg), sg.t, k0)
+                lines.append(f"\n    block at {sg.t[0]:6.2f} s: robot-contact frames {int(np.sum(sg.mode == rc))}, "
+                             f"observed launch {obs:.3f} m/s, true/declared launch {l1 / l0:.3f}, block error "
+                             f"{eb * 1e3:6.2f} -> {ea * 1e3:6.2f} mm ({(eb - ea) / max(eb, ea):+.2f})")
     finally:
         sim.close()
     d = b - a
     return (f"true-model split on {len(segs)} blocks where {name} acts ({int(sum(m.sum() for m in masks))} frames): "
             f"declared {np.nanmean(b) * 1e3:.2f} mm -> true {np.nanmean(a) * 1e3:.2f} mm, better/worse "
-            f"{int(np.sum(d > 0))}/{int(np.sum(d < 0))}, median relative fall {np.nanmedian(d / b):+.0%}")
+            f"{int(np.sum(d > 0))}/{int(np.sum(d < 0))}, median relative fall {np.nanmedian(d / b):+.0%}" + "".join(lines))
 
 
 def strike(args) -> None:
@@ -467,7 +491,7 @@ def strike(args) -> None:
                 if args.learned_model else perturbed_model(ls)
             if args.true_split:
                 if name:
-                    print(f"{case:15s} seed {seed}: {_true_split(ls, model, name, truth, cfg)}", flush=True)
+                    print(f"{case:15s} seed {seed}: {_true_split(ls, model, name, truth, cfg, args.per_block)}", flush=True)
                 continue
             out = run(ResidualInputs(model, (ls.trajectory,), ls.table_height, robot=(ls.robot,)), cfg)
             sb = out.by_mode["rollout_before"]["sliding"]["pos_err_m"]
@@ -589,6 +613,9 @@ def main() -> None:
     st.add_argument("--true-split", action="store_true",
                     help="no loop: the block errors of the declared model and of the true effect value, on the effect's "
                          "frames of every block where it acts (what the data can show)")
+    st.add_argument("--per-block", action="store_true",
+                    help="with --true-split: one line per block (its robot-contact frames, the observed launch speed, "
+                         "the true model's launch over the declared one's, the two block errors)")
     st.add_argument("--sphere-drive", choices=("lead", "inverse"), default=None,
                     help="how the rollouts drag the sphere along the measured path (ResidualConfig.sphere_drive, "
                          "docs/residuals.md §6): lead or inverse (the constraint's update inverted, the config's default)")
@@ -640,6 +667,10 @@ def main() -> None:
         sp.add_argument("--contact-persist", default=None, metavar="M", type=off_or_float,
                         help="threshold of the object-table manifold re-made at the first touch in m, or 'off' "
                              "(ResidualConfig.contact_persist_m, docs/residuals.md §7 'Resting contact ...')")
+        sp.add_argument("--restitution-threshold", default=None, metavar="V", type=float,
+                        help="relative normal speed in m/s below which the loop's simulator gives a contact no bounce "
+                             "(ResidualConfig.restitution_threshold_mps; default: the config's, 0.05; the synthetic "
+                             "lab keeps Bullet's 0.2; docs/residuals.md §7 'Restitution on strikes as a test')")
     args = ap.parse_args()
     # refused before any session is made (naming the flag), not by a traceback from the loop's config
     if args.folds < 1:
@@ -648,6 +679,8 @@ def main() -> None:
         ap.error(f"--robot-smooth: expected a finite window >= 0 s, got {args.robot_smooth}")
     if getattr(args, "pose_noise", 0.0) < 0:
         ap.error(f"--pose-noise: expected a noise level >= 0 m, got {args.pose_noise}")
+    if getattr(args, "per_block", False) and not args.true_split:
+        ap.error("--per-block: only with --true-split")
     # the simulator flags' values checked by the config's own validation (range, NaN), each naming its flag
     from service.residuals.types import ResidualConfig
 
@@ -659,6 +692,11 @@ def main() -> None:
                 ResidualConfig(**{field: v})
             except ValueError as e:
                 ap.error(f"--{flag.replace('_', '-')}: {e}")
+    if getattr(args, "restitution_threshold", None) is not None:
+        try:
+            ResidualConfig(restitution_threshold_mps=args.restitution_threshold)
+        except ValueError as e:
+            ap.error(f"--restitution-threshold: {e}")
     if getattr(args, "candidates", None):
         from service.residuals.effects import REGISTRY
 

@@ -104,7 +104,7 @@ class BulletSimulator:
 
     def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0, contact_breaking_m: float | None = None,
                  contact_erp: float | None = None, sphere_drive: str = "lead", contact_persist_m: float | None = None,
-                 sphere_velocity_only: bool = False, touch_split: bool = False):
+                 sphere_velocity_only: bool = False, touch_split: bool = False, restitution_threshold_mps: float = 0.05):
         import pybullet
 
         if contact_breaking_m is not None and not contact_breaking_m > 0:
@@ -115,6 +115,10 @@ class BulletSimulator:
             raise ValueError(f"contact_persist_m must be > 0 m or None, not {contact_persist_m!r}")
         if sphere_drive not in SPHERE_DRIVES:
             raise ValueError(f"sphere_drive must be one of {SPHERE_DRIVES}, not {sphere_drive!r}")
+        if not 0.0 <= restitution_threshold_mps < np.inf:
+            raise ValueError(f"restitution_threshold_mps must be >= 0 m/s, not {restitution_threshold_mps!r}")
+        # relative normal speed below which a contact gets no bounce, m/s (Bullet's restitutionVelocityThreshold)
+        self.restitution_threshold = float(restitution_threshold_mps)
         self._p = pybullet
         self._cid = pybullet.connect(pybullet.DIRECT)
         self.substep = float(sim_substep_s)
@@ -246,7 +250,7 @@ class BulletSimulator:
         p.setGravity(*gravity_vector(eff), physicsClientId=cid)
         p.setPhysicsEngineParameter(
             fixedTimeStep=h, numSolverIterations=50, numSubSteps=0, deterministicOverlappingPairs=1,
-            restitutionVelocityThreshold=0.05, erp=CONSTRAINT_ERP, physicsClientId=cid, **self._contact_kw,
+            restitutionVelocityThreshold=self.restitution_threshold, erp=CONSTRAINT_ERP, physicsClientId=cid, **self._contact_kw,
         )
         mu_t, mu_r = _frictions(model, eff)
         table_z = float(req.table_height) + float(eff.get("table_offset", 0.0))
@@ -349,22 +353,24 @@ class BulletSimulator:
 def make_simulator(sim_substep_s: float = 0.002, contact_breaking_m: float | None = None,
                    contact_erp: float | None = None, sphere_drive: str = "lead",
                    contact_persist_m: float | None = None, sphere_velocity_only: bool = False,
-                   touch_split: bool = False) -> BulletSimulator:
+                   touch_split: bool = False, restitution_threshold_mps: float = 0.05) -> BulletSimulator:
     """The built-in simulator used when the caller injects none (``ResidualConfig.sim_substep_s``,
-    ``contact_breaking_m``, ``contact_erp``, ``sphere_drive``, ``contact_persist_m``, ``sphere_velocity_only`` and
-    ``touch_split``)."""
+    ``contact_breaking_m``, ``contact_erp``, ``sphere_drive``, ``contact_persist_m``, ``sphere_velocity_only``,
+    ``touch_split`` and ``restitution_threshold_mps``)."""
     return BulletSimulator(sim_substep_s, contact_breaking_m=contact_breaking_m, contact_erp=contact_erp,
                            sphere_drive=sphere_drive, contact_persist_m=contact_persist_m,
-                           sphere_velocity_only=sphere_velocity_only, touch_split=touch_split)
+                           sphere_velocity_only=sphere_velocity_only, touch_split=touch_split,
+                           restitution_threshold_mps=restitution_threshold_mps)
 
 
 def simulator_for(cfg) -> BulletSimulator:
     """The loop's built-in simulator for the settings ``cfg`` (a ``ResidualConfig``): its sub-step, contact breaking
-    threshold, contact erp, sphere drive, contact persistence, velocity-only sphere contact and the sub-step split at
-    the touch. ``run`` uses it when the caller injects no simulator;
+    threshold, contact erp, sphere drive, contact persistence, velocity-only sphere contact, the sub-step split at
+    the touch and the restitution velocity threshold. ``run`` uses it when the caller injects no simulator;
     diagnosis scripts replay with it so that their rollouts are the loop's."""
     return make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp, cfg.sphere_drive,
-                          cfg.contact_persist_m, cfg.sphere_velocity_only, cfg.touch_split)
+                          cfg.contact_persist_m, cfg.sphere_velocity_only, cfg.touch_split,
+                          cfg.restitution_threshold_mps)
 
 
 def service_sim_simulator(sim_cfg=None):

@@ -170,6 +170,11 @@ class ResidualConfig:
     # contact that starts at the touch"). On by default with the inverse drive below ("The split and the inverse drive
     # together"); with the lead drive it left the strike test's damping 1.42 /s for 2.0
     touch_split: bool = True
+    # relative normal speed below which the built-in simulator's contacts get no bounce, m/s (Bullet's
+    # restitutionVelocityThreshold; 0.05 = the loop's since it has one, Bullet's own default is 0.2, which the synthetic
+    # lab keeps). On strikes the sphere's re-touches and follow-through pushes close below 0.2 m/s: replayed at 0.05 they
+    # bounce, in the lab not (docs/residuals.md §7, "Restitution on strikes as a test"; measured, 0.05 kept)
+    restitution_threshold_mps: float = 0.05
     contact_tol_m: float = 0.004  # gap below which the table counts as touching (mode classifier)
     rest_speed: float = 0.03  # m/s, below this (and touching) the object is at rest
     impact_dv: float = 0.3  # m/s, a velocity jump above this in one step while touching = impact
@@ -270,6 +275,9 @@ class ResidualConfig:
             raise ValueError(f"ResidualConfig.sphere_velocity_only must be a bool, not {self.sphere_velocity_only!r}")
         if not isinstance(self.touch_split, bool):
             raise ValueError(f"ResidualConfig.touch_split must be a bool, not {self.touch_split!r}")
+        v = self.restitution_threshold_mps
+        if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v < np.inf):
+            raise ValueError(f"ResidualConfig.restitution_threshold_mps must be a number >= 0 m/s, not {v!r}")
         if self.contact_erp is not None and not 0.0 <= self.contact_erp <= 1.0:
             raise ValueError(f"ResidualConfig.contact_erp must be in [0, 1] or None, not {self.contact_erp!r}")
         if not (isinstance(self.folds, int) and self.folds >= 1):

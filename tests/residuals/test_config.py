@@ -29,6 +29,8 @@ def test_presets_are_valid():
     ({"tie_tol_rel": -0.1}, "tie_tol_rel"),
     ({"alpha": "0.05"}, "alpha"),  # a string from a config file: refused naming the field, not a TypeError
     ({"segment_s": "0.3"}, "segment_s"),
+    ({"restitution_threshold_mps": -0.05}, "restitution_threshold_mps"),
+    ({"restitution_threshold_mps": float("nan")}, "restitution_threshold_mps"),
 ])
 def test_bad_settings_are_refused(change, word):
     with pytest.raises(ValueError, match=word):

@@ -14,6 +14,8 @@ def test_simulator_for_carries_the_settings():
         assert sim.sphere_velocity_only
     with simulator_for(ResidualConfig(touch_split=True)) as sim:
         assert sim.touch_split
+    with simulator_for(ResidualConfig(restitution_threshold_mps=0.2)) as sim:
+        assert sim.restitution_threshold == 0.2
 
 
 def test_simulator_for_the_defaults_is_the_loops():
@@ -24,3 +26,4 @@ def test_simulator_for_the_defaults_is_the_loops():
         assert sim.contact_persist is None
         assert sim.sphere_velocity_only is cfg.sphere_velocity_only is False
         assert sim.touch_split is cfg.touch_split is True
+        assert sim.restitution_threshold == cfg.restitution_threshold_mps == 0.05
