@@ -17,6 +17,11 @@ with the final model:
   Σ (ẑ_W · R_WO a)² — the smallest eigenvector of Σ u uᵀ, u = R_WOᵀ ẑ_W (``lying_axis``).
 The point c of the axis: "still" its own; "lying" the radius-profile fit of the final model with the direction held
 (``profile_point``).
+
+Measured on development egg topples (docs/tracking.md "The spin closure's axis from data the loop's swing did not
+smear"): both are further from the true axis than the final model's (median 13–16° against 4–5°: the still egg is
+a shallow cap whose radius profile does not pin the axis; the lying frames' vertical carries the poses' swing), and
+even the true axis does not repair the loop's swing; off by default.
 """
 
 from __future__ import annotations
