@@ -102,7 +102,8 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
               rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4, fast_rate_deg: float = 2.0,
               fast_dilate: int = 4, fast_votes: int = 60, fall_rate_deg: float = 0.4, fall_min_deg: float = 45.0,
               fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0, lit: LitTest | None = None, n_view: int = 0,
-              view_upright_deg: float = 90.0, entry_fit: int = 0) -> tuple[SpinResult, np.ndarray]:
+              view_upright_deg: float = 90.0, entry_fit: int = 0, axis: tuple | None = None
+              ) -> tuple[SpinResult, np.ndarray]:
     """(spin correction, (N,) bool frames that took the no-twist increments) for the poses X_WO (N,4,4) of a body of
     revolution with model Q, N (M,3) in O and interior features ``feats`` (as ``spin_mixed``, whose settings the
     other arguments are): ``spin_mixed``'s estimate, except over the topples (``topple_frames``) where its spin
@@ -110,7 +111,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
     the other weak fast frames the graph's, as in ``spin_mixed`` (module docstring); ``entry_fit`` ≥ 3: those
     topples' increments start from the median corrected twist of the last ``entry_fit`` chain-voted frames before
     them (``spin.entry_spin``; 0: from the entry frame's own value). No topple, or none refused by the guard:
-    ``spin_mixed``'s result itself."""
+    ``spin_mixed``'s result itself. ``axis``: ``find_axis``'s result when already known (as ``spin_mixed``)."""
     n = len(X_WO)
     parts: dict = {}  # spin_mixed's graph solution, reused below (the same links: same poses, axis and settings)
     match_once = matched_once(match)  # the default estimate and the one with the topples share the pairs
@@ -120,7 +121,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
                       max_deg=max_deg, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg, long_votes=long_votes,
                       fast_span=fast_span, fast_rate_deg=fast_rate_deg, fast_dilate=fast_dilate,
                       fast_votes=fast_votes, parts=parts, lit=lit, n_view=n_view,
-                      view_upright_deg=view_upright_deg)
+                      view_upright_deg=view_upright_deg, axis=axis)
     none = np.zeros(n, bool)
     if not base.is_revolution or base.rejected:
         return base, none

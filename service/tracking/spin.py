@@ -124,18 +124,20 @@ def _split_tie(lam: np.ndarray, U: np.ndarray, k: int, rel: float = 1e-12) -> tu
     return lam, U
 
 
-def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, trunc: float = 0.003
-                 ) -> tuple[np.ndarray, np.ndarray, float]:
+def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, trunc: float = 0.003,
+                 fixed_dir: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
     """Axis (a, c) of a body of revolution refitted to the radius profile of its points Q (M,3), starting from
     (a0, c0): minimise the mean of min(e², trunc²) over the points, e = r − ρ(h) with r, h the radius and height
     about the axis and ρ the least-squares polynomial of degree ``deg`` in h (Nelder–Mead over two tilts of a and
     two shifts of c). Uses positions only, so it holds where the normals' eigen-axis mixes two weak rotations
-    (an egg). Returns (a, c, rms of the truncated residual in m)."""
+    (an egg). ``fixed_dir``: a stays a0, only c moves. Returns (a, c, rms of the truncated residual in m)."""
     from scipy.optimize import minimize
 
     e1, e2 = plane_basis(a0)
 
     def unpack(x):
+        if fixed_dir:
+            return a0, c0 + x[0] * e1 + x[1] * e2
         a = a0 + x[0] * e1 + x[1] * e2
         return a / np.linalg.norm(a), c0 + x[2] * e1 + x[3] * e2
 
@@ -148,7 +150,7 @@ def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, tr
         coef, *_ = np.linalg.lstsq(V, r, rcond=None)
         return float(np.mean(np.minimum((r - V @ coef) ** 2, trunc**2)))
 
-    r = minimize(cost, np.zeros(4), method="Nelder-Mead", options=dict(xatol=1e-5, fatol=1e-12, maxiter=2000))
+    r = minimize(cost, np.zeros(2 if fixed_dir else 4), method="Nelder-Mead", options=dict(xatol=1e-5, fatol=1e-12, maxiter=2000))
     a, c = unpack(r.x)
     return a, c, float(np.sqrt(r.fun))
 
@@ -684,13 +686,14 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
                n_short: int = 2, rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4,
                fast_rate_deg: float = 2.0, fast_dilate: int = 4, fast_votes: int = 60,
                parts: dict | None = None, lit: LitTest | None = None, n_view: int = 0,
-               view_upright_deg: float = 90.0) -> SpinResult:
+               view_upright_deg: float = 90.0, axis: tuple | None = None) -> SpinResult:
     """Spin correction like ``spin_closure`` (same axis, cap, result): the chain, with the fast frames where it pooled
     fewer than ``fast_votes`` votes (``fast_frames``; widened) taking the increments of the pose graph
     (``spin_links``, ``solve_spin_graph``; comment above). ``parts``: a dict that receives the intermediate results
-    others reuse (keys "axis": ``find_axis``'s result; "theta_g": the graph's solution (N,), when it was computed)."""
+    others reuse (keys "axis": ``find_axis``'s result; "theta_g": the graph's solution (N,), when it was computed).
+    ``axis``: ``find_axis``'s result when already known (as ``spin_closure``)."""
     n = len(X_WO)
-    axis = find_axis(Q, N, tau, sep, profile)
+    axis = axis if axis is not None else find_axis(Q, N, tau, sep, profile)
     if parts is not None:
         parts["axis"] = axis
     match_once = matched_once(match)  # the chain runs twice and the graph asks for many of the same pairs

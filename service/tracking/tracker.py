@@ -854,6 +854,8 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
                   match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg,
                   n_view=cfg.spin_view_anchors, view_upright_deg=cfg.spin_view_upright_deg)
     common["tau"] = _spin_tau(model, cfg)
+    if cfg.spin_axis_from != "model":  # the axis' direction from data the loop's swing did not smear
+        common["axis"] = _closure_axis(obs, X, model, cfg, common["tau"])
     if cfg.spin_lit_frac > 0:  # the light's features on a rolling body dropped from the votes (spin.lit_matches)
         from service.tracking.spin import LitTest
 
@@ -879,6 +881,47 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
         res = _spin_pivot(res, X, cfg)
     X[:] = apply_spin(X, res)
     return res
+
+
+def _closure_axis(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, tau: float) -> tuple:
+    """``spin.find_axis``'s result (is_revolution, λ̂, a, c) on the final model, its axis (a, c) in O replaced by
+    the one ``cfg.spin_axis_from`` names when the model is a body of revolution (docs/tracking.md)."""
+    from service.tracking.spin import find_axis
+
+    axis = find_axis(model.Q, model.N, tau, cfg.spin_sep, cfg.spin_profile)
+    if not axis[0]:
+        return axis
+    ac = _AXIS_FROM[cfg.spin_axis_from](obs, X, model, cfg, axis[2], axis[3])
+    return axis if ac is None else (axis[0], axis[1], ac[0], ac[1])
+
+
+def _axis_still(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, a0: np.ndarray,
+                c0: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The axis (a, c) in O of the frames before the body first moves (``spinaxis.still_axis``); None without them."""
+    from service.tracking.spinaxis import still_axis, still_frames
+
+    parts = []
+    R = X[0, :3, :3]  # the body at rest: frame 0's pose (O) for every still frame
+    for i in still_frames(X):
+        if len(obs[i].P_W) >= cfg.min_points:
+            parts.append(((obs[i].P_W - X[0, :3, 3]) @ R, obs[i].N_W @ R))
+    if not parts:
+        return None
+    still = ObjectModel.build(cfg.model_voxel, parts)
+    a, c, _ = still_axis(still.Q, still.N, a0, c0)
+    return a, c
+
+
+def _axis_lying(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, a0: np.ndarray,
+                c0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The axis in O horizontal in the lying frames (``spinaxis.lying_axis``), its point fitted to the model."""
+    from service.tracking.spinaxis import lying_axis, profile_point
+
+    a, _ = lying_axis(X, a0)
+    return a, profile_point(model.Q, a, c0)
+
+
+_AXIS_FROM = {"still": _axis_still, "lying": _axis_lying}
 
 
 def _spin_pivot(res: "SpinResult", X: np.ndarray, cfg: TrackingConfig) -> "SpinResult":

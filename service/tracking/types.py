@@ -383,6 +383,10 @@ class TrackingConfig:
     # development egg 1364 2.16 -> 1.75 deg median, one of the eggs the cap was set on, the six eggs made after it
     # identical; evaluation egg 707 6.82 / 28.44 -> 6.75 / 28.52, the others identical: no gain beyond noise)
     spin_rounds: int = 0
+    # the spin closure's axis (service.tracking.tracker._closure_axis): "model" (default) the final model's, refitted
+    # to its radius profile (spin_profile); other names: its direction from data the loop's swing did not smear
+    # (docs/tracking.md "The spin closure's axis from data the loop's swing did not smear")
+    spin_axis_from: str = "model"
     spin_rounds_max_deg: float = 5.0
     # the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass): the face
     # of the pre-fall model that lies on the table at the settled frame (resettle.landed_face) is laid flush with the
@@ -444,6 +448,9 @@ class TrackingConfig:
         if self.spin_profile not in ("off", "mixed", "multi", "always"):
             raise ValueError("TrackingConfig.spin_profile must be 'off', 'mixed', 'multi' or 'always', "
                              f"not {self.spin_profile!r}")
+        if self.spin_axis_from not in ("model", "still", "lying"):
+            raise ValueError("TrackingConfig.spin_axis_from must be 'model', 'still' or 'lying', "
+                             f"not {self.spin_axis_from!r}")
         if self.spin_solver not in ("chain", "mixed"):
             raise ValueError(f"TrackingConfig.spin_solver must be 'chain' or 'mixed', not {self.spin_solver!r}")
         if not self.spin_mixed_rate_deg >= 0:
