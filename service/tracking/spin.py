@@ -11,7 +11,8 @@ axis, so the screw ξ = (ω, v) with ω = a (unit axis) and v = c × a (c on the
 every point. The shape counts as a body of revolution when the smallest normalised eigenvalue λ̂_1 (unit-consistent
 scaling, ≈ 1/3 for a direction every point fixes) is below ``spin_tau``, at most ``spin_sep`` times the next one
 and its eigenvector is mostly rotation; then a = ω/|ω|, c = ω × v / |ω|². Boxes, prisms and planes (weak
-directions, if any, are slides) are left alone. An egg's noisy model has two nearly equal weak rotations (λ̂ 0.020
+directions, if any, are slides) are left alone; a long prism that the λ̂ test still accepts is refused by where its
+normals point (``flat_faced``). An egg's noisy model has two nearly equal weak rotations (λ̂ 0.020
 and 0.028 on the development egg 512) whose eigenvectors mix (23° off its axis), or a slide weakest and the axis
 next: then (``find_axis``, profile "mixed") the axis is refitted to the radius profile of the model points
 (``profile_axis``: r − ρ(h) minimal for a polynomial profile ρ, positions only; 512: 23° → 5°).

@@ -373,7 +373,7 @@ class TrackingConfig:
     # meridian planes about the closure's axis by κ >= spin_flat_kappa (κ as for spin_arc_tau: flat faces, a prism
     # whose spin the λ̂ test, scaled by the model's length, misses); no correction then (spin.flat_faced; 0: off;
     # docs/tracking.md "Boxes are not bodies of revolution")
-    spin_flat_kappa: float = 0.0
+    spin_flat_kappa: float = 0.12
     # egg-like bodies (the spin axis found by its radius profile: every rotation about the centre weak): after the
     # spin closure, the rotations about the two short axes re-estimated from interior keypoints matched to frame 0
     # and earlier corrected frames, in the frames whose spin the texture measured, when the model is longer along

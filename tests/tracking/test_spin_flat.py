@@ -93,13 +93,13 @@ def test_tracker_leaves_a_prism_alone_only_when_on():
     X0 = X.copy()
     assert not _spin_closure(obs, X, model, on).is_revolution
     assert np.array_equal(X, X0)
-    assert _spin_closure(obs, X, model, TrackingConfig()).is_revolution  # off: taken for one (as before)
+    assert _spin_closure(obs, X, model, TrackingConfig(spin_flat_kappa=0.0)).is_revolution  # off: taken for one
     Qb, Nb = _bottle(0.0, 0.2)
     assert _flat_faced(SimpleNamespace(Q=Qb, N=Nb), on, n) is None  # a bottle proceeds
 
 
 def test_config_validates_flat_kappa():
-    assert TrackingConfig().spin_flat_kappa >= 0
+    assert TrackingConfig().spin_flat_kappa == KAPPA  # on by default
     for bad in (-0.1, 1.0):
         with pytest.raises(ValueError):
             TrackingConfig(spin_flat_kappa=bad)
