@@ -11,7 +11,8 @@ axis, so the screw ξ = (ω, v) with ω = a (unit axis) and v = c × a (c on the
 every point. The shape counts as a body of revolution when the smallest normalised eigenvalue λ̂_1 (unit-consistent
 scaling, ≈ 1/3 for a direction every point fixes) is below ``spin_tau``, at most ``spin_sep`` times the next one
 and its eigenvector is mostly rotation; then a = ω/|ω|, c = ω × v / |ω|². Boxes, prisms and planes (weak
-directions, if any, are slides) are left alone. An egg's noisy model has two nearly equal weak rotations (λ̂ 0.020
+directions, if any, are slides) are left alone; a long prism that the λ̂ test still accepts is refused by where its
+normals point (``flat_faced``). An egg's noisy model has two nearly equal weak rotations (λ̂ 0.020
 and 0.028 on the development egg 512) whose eigenvectors mix (23° off its axis), or a slide weakest and the axis
 next: then (``find_axis``, profile "mixed") the axis is refitted to the radius profile of the model points
 (``profile_axis``: r − ρ(h) minimal for a polynomial profile ρ, positions only; 512: 23° → 5°).
@@ -804,3 +805,31 @@ def partial_tau(Q: np.ndarray, N: np.ndarray, tau: float, sep: float, arc_tau: f
     if profile_axis(Q, a, c)[2] > max_rms:
         return tau
     return float(np.nextafter(lam, np.inf))
+
+
+# ---- flat faces are not a surface of revolution (``spin_flat_kappa``) ---------------------------------------------
+#
+# The λ̂ test scales a rotation by L, the RMS distance of the model points from their centroid, so a long prism is
+# taken for a body of revolution about its long axis: its side faces' residual under that spin is of the order of its
+# section, small against L (a 300 × 60 × 60 mm box: λ̂ 0.015-0.020; development milk_carton topple 1490: λ̂ 0.025,
+# axis 13° from the carton's long axis). What tells a prism from a body of revolution is where its normals point.
+# On a surface of revolution every normal lies in the meridian plane through its point (the plane of the axis and
+# the point): turned about the axis, the surface slides in itself. On a flat face the normal is one direction while
+# the points sweep an arc about any axis, so the normals leave the meridian planes by an angle ψ that grows to the
+# face's edges (tan ψ = s / h, s along the face from the foot of the perpendicular from the axis, h that
+# perpendicular). The score is the existing κ (``arc_score``) about the axis the closure would use:
+#     κ = Σ (n · (a × (p − c)))² / Σ |a × (p − c)|²,
+# the r²-weighted mean of |n_⊥|² sin² ψ: ≈ 0 for a surface of revolution, whatever part of it is covered and
+# whatever its profile; for a square prism about its centre line ∫ s² ds / ∫ (h² + s²) ds = 1/4 over the side faces
+# (less where end caps, whose normals are along the axis, dilute it; more about an axis off the prism's centre
+# line). A model that passes the axis test with κ ≥ ``spin_flat_kappa`` is not taken for a body of revolution: its
+# surface would see the spin the closure is about to apply, so the spin is not the free direction the closure
+# assumes.
+
+def flat_faced(Q: np.ndarray, N: np.ndarray, axis: tuple, kappa_max: float) -> bool:
+    """True when ``axis`` = (is_revolution, λ̂, a, c) (``find_axis`` of the model points Q (M,3) with unit normals
+    N (M,3), in O) takes the model for a body of revolution but its normals leave the meridian planes about (a, c)
+    by κ ≥ ``kappa_max`` (``arc_score``; comment above): flat faces, a prism. False when ``kappa_max`` ≤ 0 or the
+    model was not taken for a body of revolution."""
+    ok, _, a, c = axis
+    return bool(kappa_max > 0 and ok and arc_score(Q, N, a, c) >= kappa_max)

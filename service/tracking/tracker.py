@@ -847,6 +847,10 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
     it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture."""
     from service.tracking.spin import apply_spin, spin_closure
 
+    if cfg.spin_flat_kappa > 0:  # a prism the axis test took for a body of revolution is left alone (spin.flat_faced)
+        refused = _flat_faced(model, cfg, len(X))
+        if refused is not None:
+            return refused
     empty = (np.zeros((0, 3)), None)
     feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
     common = dict(tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
@@ -922,6 +926,19 @@ def _axis_lying(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: Tra
 
 
 _AXIS_FROM = {"still": _axis_still, "lying": _axis_lying}
+
+
+def _flat_faced(model: ObjectModel, cfg: TrackingConfig, n: int) -> "SpinResult | None":
+    """The spin result (n frames) of a model that the body-of-revolution test (``spin.find_axis`` with the tracker's
+    settings) takes for one but whose normals leave the meridian planes about its axis by κ ≥ ``spin_flat_kappa``
+    (``spin.flat_faced``): not a body of revolution, no correction, as when the axis test refuses a model; None when
+    the closure proceeds."""
+    from service.tracking.spin import SpinResult, find_axis, flat_faced
+
+    axis = find_axis(model.Q, model.N, _spin_tau(model, cfg), cfg.spin_sep, cfg.spin_profile)
+    if not flat_faced(model.Q, model.N, axis, cfg.spin_flat_kappa):
+        return None
+    return SpinResult(False, axis[1], np.zeros(3), np.zeros(3), np.zeros(n), np.zeros(n, int), False)
 
 
 def _spin_pivot(res: "SpinResult", X: np.ndarray, cfg: TrackingConfig) -> "SpinResult":

@@ -369,6 +369,11 @@ class TrackingConfig:
     # by the surface as a fraction of the arc each point moves), and its radius profile fits within 2 mm
     # (spin.partial_tau; 0: off; docs/tracking.md "Bodies of revolution seen in part")
     spin_arc_tau: float = 0.08  # development partial bottle pivots 940, 941, 943, 944: worst 6.2-7.8 -> 2.5-3.4 deg
+    # a model the body-of-revolution test takes for one (spin_tau, spin_arc_tau) is refused when its normals leave the
+    # meridian planes about the closure's axis by κ >= spin_flat_kappa (κ as for spin_arc_tau: flat faces, a prism
+    # whose spin the λ̂ test, scaled by the model's length, misses); no correction then (spin.flat_faced; 0: off;
+    # docs/tracking.md "Boxes are not bodies of revolution")
+    spin_flat_kappa: float = 0.12
     # egg-like bodies (the spin axis found by its radius profile: every rotation about the centre weak): after the
     # spin closure, the rotations about the two short axes re-estimated from interior keypoints matched to frame 0
     # and earlier corrected frames, in the frames whose spin the texture measured, when the model is longer along
@@ -564,6 +569,8 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.lie_level_margin must be >= 0, not {self.lie_level_margin!r}")
         if not 0 <= self.spin_arc_tau < 1:
             raise ValueError(f"TrackingConfig.spin_arc_tau must be in [0, 1), not {self.spin_arc_tau!r}")
+        if not 0 <= self.spin_flat_kappa < 1:
+            raise ValueError(f"TrackingConfig.spin_flat_kappa must be in [0, 1), not {self.spin_flat_kappa!r}")
 
     @classmethod
     def fast(cls) -> "TrackingConfig":
