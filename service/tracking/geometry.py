@@ -106,14 +106,14 @@ def kabsch(A: np.ndarray, B: np.ndarray, w: np.ndarray | None = None) -> np.ndar
 
 
 def ransac_rigid(A: np.ndarray, B: np.ndarray, thr: float, iters: int = 200, rng: np.random.Generator | None = None,
-                 min_inliers: int = 6, cam: tuple[np.ndarray, np.ndarray, float] | None = None
+                 min_inliers: int = 6, cam: tuple[np.ndarray, np.ndarray, "float | np.ndarray"] | None = None
                  ) -> tuple[np.ndarray | None, np.ndarray]:
     """Robust pose with b ≈ X a from putative correspondences A, B (N,3). Returns (X or None, inlier mask (N,)).
 
     An inlier lies within ``thr`` (m) of its prediction; with ``cam`` = (K (3,3), X_CA (4,4), px), A being points
     measured by the camera C (X_CA: the frame of A in C), the prediction X⁻¹ b of a is compared in C instead: within
     ``px`` pixels across the ray (reprojection) and ``thr`` along it (depth), the two directions of a keypoint's
-    noise (``ray_inliers``)."""
+    noise (``ray_inliers``; ``px`` a number or one per correspondence (N,))."""
     n = len(A)
     if n < max(3, min_inliers):
         return None, np.zeros(n, bool)
@@ -143,13 +143,13 @@ def ransac_rigid(A: np.ndarray, B: np.ndarray, thr: float, iters: int = 200, rng
     return kabsch(A[inl], B[inl]), inl
 
 
-def ray_inliers(A: np.ndarray, B: np.ndarray, Xs: np.ndarray, cam: tuple[np.ndarray, np.ndarray, float], thr: float
-                ) -> np.ndarray:
+def ray_inliers(A: np.ndarray, B: np.ndarray, Xs: np.ndarray, cam: tuple[np.ndarray, np.ndarray, "float | np.ndarray"],
+                thr: float) -> np.ndarray:
     """(M,N) bool: for every hypothesis Xs[m] (M,4,4) with b ≈ X a, whether a (N,3), measured by camera C, lies
     within ``px`` pixels of the prediction X⁻¹ b across the camera ray and within ``thr`` (m) along it (depth);
-    ``cam`` = (K (3,3), X_CA (4,4), px). A keypoint's position across the ray is its image location (about a
-    pixel), along it the depth reading (a few millimetres at 0.8 m): one isotropic ball is either too wide across
-    or too narrow along."""
+    ``cam`` = (K (3,3), X_CA (4,4), px), px a number or (N,) one per correspondence. A keypoint's position across
+    the ray is its image location (about a pixel), along it the depth reading (a few millimetres at 0.8 m): one
+    isotropic ball is either too wide across or too narrow along."""
     K, X_CA, px = cam
     Ac = A @ X_CA[:3, :3].T + X_CA[:3, 3]
     Rt = np.swapaxes(Xs[:, :3, :3], 1, 2)  # X⁻¹ = (Rᵀ, −Rᵀ t)

@@ -93,6 +93,12 @@ class TrackingConfig:
     # Off: 2 px gained on 18 of 22 development eggs and on 704, 710, 711, and lost on the evaluation 703 and 707
     # (docs/tracking.md, "Eggs: why the loop's increment in a roll is short")
     track_ransac_px: float | None = None
+    # with track_ransac_px: the band across the ray (pixels) for the matches to keyframes; None: track_ransac_px for
+    # every match. A keyframe match predicts the keypoint from the keyframe's pose, whose error relative to the
+    # previous frame's (the chain's drift since the keyframe, 1-3 mm) adds to the keypoint's own noise; at 2 px the
+    # consensus keeps the previous frame's matches and drops a third of the right keyframe matches, so a push's lag is
+    # no longer pulled back to the keyframes (docs/tracking.md, "Where else the camera consensus loses"). Off.
+    track_ransac_kf_px: float | None = None
     min_inlier_frac: float = 0.35  # below: lost track
     max_rmse: float = 0.006  # above: lost track
     max_speed: float = 1.5  # a pose farther than this (m/s) or
@@ -446,10 +452,10 @@ class TrackingConfig:
         for name in ("kf_still_speed", "kf_still_tilt_deg", "track_ransac_thr"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
-        if self.track_ransac_px is not None and (isinstance(self.track_ransac_px, bool)
-                                                 or not isinstance(self.track_ransac_px, (int, float))
-                                                 or not self.track_ransac_px > 0):
-            raise ValueError(f"TrackingConfig.track_ransac_px must be None or > 0 (pixels), not {self.track_ransac_px!r}")
+        for name in ("track_ransac_px", "track_ransac_kf_px"):
+            v = getattr(self, name)
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0):
+                raise ValueError(f"TrackingConfig.{name} must be None or > 0 (pixels), not {v!r}")
         if self.spin_profile not in ("off", "mixed", "multi", "always"):
             raise ValueError("TrackingConfig.spin_profile must be 'off', 'mixed', 'multi' or 'always', "
                              f"not {self.spin_profile!r}")
