@@ -124,7 +124,7 @@ def fold_agreement(eff, thetas, model: ObjectModel) -> tuple[bool, str]:
             ang.append(float(np.degrees(np.arccos(np.clip(c, -1.0, 1.0)))) if n[a] > 0 and n[b] > 0 else 180.0)
     worst = max(ang)
     agree = worst < 90.0
-    txt = f"largest angle between fold departures {worst:.0f}°" + (" (< 90°)" if agree else " (>= 90°)")
+    txt = f"largest angle between fold departures {worst:.1f}°" + (" (< 90°)" if agree else " (>= 90°)")
     return agree, txt
 
 

@@ -23,7 +23,7 @@ def test_vectors_reject_folds_pointing_apart_keep_close_ones():
     tilt, m = REGISTRY["table_tilt"], _model()
     # the two fold values of the wrong tilt on learned-model strike seed 602 (mrad), 109° apart
     ok, txt = fold_agreement(tilt, [(-0.005438, 0.007031), (0.008944, 0.002984)], m)
-    assert not ok and "109°" in txt
+    assert not ok and "109.3° (>= 90°)" in txt
     assert not fold_agreement(tilt, [_tilt(0), _tilt(95)], m)[0]
     assert not fold_agreement(tilt, [_tilt(10), _tilt(190, 0.004)], m)[0]
     assert fold_agreement(tilt, [_tilt(0), _tilt(60, 0.01)], m)[0]
@@ -55,8 +55,14 @@ def test_rule_rejects_only_passing_effects_and_reports_its_figures():
     ok, why = agreement_rule(True, "passes; held-out error +7.1%", tilt, np.array([_tilt(0), _tilt(109)]), m)
     assert not ok and why.startswith("rejected: the folds disagree") and "held-out error +7.1%" in why
     ok, why = agreement_rule(True, "passes; held-out error +30%", tilt, np.array([_tilt(0), _tilt(20)]), m)
-    assert ok and why.startswith("passes; ") and "fold agreement: largest angle between fold departures 20°" in why
+    assert ok and why.startswith("passes; ") and "fold agreement: largest angle between fold departures 20.0° (< 90°)" in why
     ok, why = agreement_rule(False, "rejected: fall below 5%", tilt, np.array([_tilt(0), _tilt(20)]), m)
     assert not ok and why.startswith("rejected: fall below 5%")
     # one split (a single value): the rule does not apply
     assert agreement_rule(True, "passes; x", tilt, np.array([_tilt(0)]), m) == (True, "passes; x")
+
+
+def test_reason_does_not_round_an_agreeing_angle_up_to_the_threshold():
+    tilt, m = REGISTRY["table_tilt"], _model()
+    ok, why = fold_agreement(tilt, np.array([_tilt(0), _tilt(89.5)]), m)
+    assert ok and "89.5° (< 90°)" in why
