@@ -386,6 +386,8 @@ class TrackingConfig:
     # its axis than across (service.tracking.tilt; only with spin_closure on; docs/tracking.md "Eggs: where the error comes
     # from"; the evaluation sessions, egg 707 included, identical bit for bit)
     spin_tilt: bool = True  # development eggs 512 7.31 -> 5.54 deg median, 922 17.05 -> 14.39, 924 3.23 -> 1.54
+    # (re-measured on the later development eggs: acts on 9 fresh ones, off gains on 3, loses on 2, mixed on 3, level on
+    # 1; off gains on 1361, 1362, 1370: kept on; docs/tracking.md "Does the tilt closure still earn its place?")
     # egg-like bodies (as spin_tilt): after the closures, up to spin_rounds more rounds, each rebuilding the model from
     # the keyframe points placed at the corrected poses and running the closures again from the corrected poses; a
     # round is kept only when its spin correction stays within spin_rounds_max_deg in every frame (the texture agrees
