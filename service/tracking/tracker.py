@@ -846,21 +846,22 @@ def _body_radius(model: ObjectModel, cfg: TrackingConfig) -> float:
 def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig) -> "SpinResult":
     """Re-estimate the spin about the symmetry axis of a body of revolution (``service.tracking.spin``) and apply
     it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture."""
-    from service.tracking.spin import apply_spin, spin_closure
+    from service.tracking.spin import apply_spin, find_axis, spin_closure
 
-    if cfg.spin_flat_kappa > 0:  # a prism the axis test took for a body of revolution is left alone (spin.flat_faced)
-        refused = _flat_faced(model, cfg, len(X))
-        if refused is not None:
-            return refused
+    tau = _spin_tau(model, cfg)
+    axis = find_axis(model.Q, model.N, tau, cfg.spin_sep, cfg.spin_profile)  # (is_revolution, λ̂, a, c), fitted once
+    refused = _flat_faced(model, cfg, axis, len(X))  # a prism the axis test took for a body of revolution
+    if refused is not None:
+        return refused
     empty = (np.zeros((0, 3)), None)
     feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
     common = dict(tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
                   smooth=1 if cfg.spin_twist_smooth > 1 else cfg.spin_smooth,  # twist filtered instead (below)
                   match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg,
                   n_view=cfg.spin_view_anchors, view_upright_deg=cfg.spin_view_upright_deg)
-    common["tau"] = _spin_tau(model, cfg)
-    if cfg.spin_axis_from != "model":  # the axis' direction from data the loop's swing did not smear
-        common["axis"] = _closure_axis(obs, X, model, cfg, common["tau"])
+    common["tau"] = tau
+    # the axis' direction from the final model, or from data the loop's swing did not smear (spin_axis_from)
+    common["axis"] = axis if cfg.spin_axis_from == "model" else _closure_axis(obs, X, model, cfg, axis)
     if cfg.spin_lit_frac > 0:  # the light's features on a rolling body dropped from the votes (spin.lit_matches)
         from service.tracking.spin import LitTest
 
@@ -888,12 +889,10 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
     return res
 
 
-def _closure_axis(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, tau: float) -> tuple:
-    """``spin.find_axis``'s result (is_revolution, λ̂, a, c) on the final model, its axis (a, c) in O replaced by
-    the one ``cfg.spin_axis_from`` names when the model is a body of revolution (docs/tracking.md)."""
-    from service.tracking.spin import find_axis
-
-    axis = find_axis(model.Q, model.N, tau, cfg.spin_sep, cfg.spin_profile)
+def _closure_axis(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, axis: tuple
+                  ) -> tuple:
+    """``spin.find_axis``'s result ``axis`` = (is_revolution, λ̂, a, c) on the final model, its axis (a, c) in O
+    replaced by the one ``cfg.spin_axis_from`` names when the model is a body of revolution (docs/tracking.md)."""
     if not axis[0]:
         return axis
     ac = _AXIS_FROM[cfg.spin_axis_from](obs, X, model, cfg, axis[2], axis[3])
@@ -929,14 +928,13 @@ def _axis_lying(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: Tra
 _AXIS_FROM = {"still": _axis_still, "lying": _axis_lying}
 
 
-def _flat_faced(model: ObjectModel, cfg: TrackingConfig, n: int) -> "SpinResult | None":
-    """The spin result (n frames) of a model that the body-of-revolution test (``spin.find_axis`` with the tracker's
-    settings) takes for one but whose normals leave the meridian planes about its axis by κ ≥ ``spin_flat_kappa``
+def _flat_faced(model: ObjectModel, cfg: TrackingConfig, axis: tuple, n: int) -> "SpinResult | None":
+    """The spin result (n frames) of a model that ``axis`` (``spin.find_axis``'s result with the tracker's settings)
+    takes for a body of revolution but whose normals leave the meridian planes about it by κ ≥ ``spin_flat_kappa``
     (``spin.flat_faced``): not a body of revolution, no correction, as when the axis test refuses a model; None when
-    the closure proceeds."""
-    from service.tracking.spin import SpinResult, find_axis, flat_faced
+    the closure proceeds (always when the setting is 0)."""
+    from service.tracking.spin import SpinResult, flat_faced
 
-    axis = find_axis(model.Q, model.N, _spin_tau(model, cfg), cfg.spin_sep, cfg.spin_profile)
     if not flat_faced(model.Q, model.N, axis, cfg.spin_flat_kappa):
         return None
     return SpinResult(False, axis[1], np.zeros(3), np.zeros(3), np.zeros(n), np.zeros(n, int), False)

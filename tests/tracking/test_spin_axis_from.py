@@ -6,6 +6,7 @@ import pytest
 
 import service.tracking.tracker as T
 from service.tracking import spinaxis as SA
+from service.tracking.spin import find_axis
 from service.tracking.types import TrackingConfig
 from service.transforms import make_X, so3_exp
 
@@ -66,6 +67,11 @@ def test_profile_point_keeps_direction():
     assert np.linalg.norm(np.cross(c - ctr, axis)) < 1e-3
 
 
+def _axis(model, cfg, tau=0.05):
+    """``spin.find_axis``'s result on the model, as the closure fits it."""
+    return find_axis(model.Q, model.N, tau, cfg.spin_sep, cfg.spin_profile)
+
+
 def test_closure_axis_replaces_the_direction(monkeypatch):
     Q, N, axis, ctr = _egg_model()
     model = T.ObjectModel(0.002, Q, N, None)
@@ -77,9 +83,10 @@ def test_closure_axis_replaces_the_direction(monkeypatch):
 
     monkeypatch.setitem(T._AXIS_FROM, "still", fake)
     cfg = TrackingConfig(spin_axis_from="still")
-    ok, lam, a, c = T._closure_axis([], np.stack([np.eye(4)]), model, cfg, 0.05)
+    ok, lam, a, c = T._closure_axis([], np.stack([np.eye(4)]), model, cfg, _axis(model, cfg))
     assert ok and np.array_equal(a, axis) and np.array_equal(c, ctr) and "a0" in seen
-    ok, *_ = T._closure_axis([], np.stack([np.eye(4)]), T.ObjectModel(0.002, Q[:10], N[:10], None), cfg, 0.05)
+    few = T.ObjectModel(0.002, Q[:10], N[:10], None)
+    ok, *_ = T._closure_axis([], np.stack([np.eye(4)]), few, cfg, _axis(few, cfg))
     assert not ok  # no body of revolution: the candidate is not asked
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from service.tracking import TrackingConfig
 from service.tracking.spin import arc_score, find_axis, flat_faced, partial_tau, revolution_axis
-from service.tracking.tracker import _flat_faced, _spin_closure
+from service.tracking.tracker import _flat_faced, _spin_closure, _spin_tau
 from service.transforms import make_X, so3_exp
 
 from tests.tracking.test_spin import _egg_model
@@ -80,12 +80,17 @@ def test_model_not_taken_for_a_body_of_revolution_is_not_scored():
     assert not flat_faced(P, Nb, axis, KAPPA)
 
 
+def _tracker_axis(model, cfg):
+    """The axis test's result as the tracker fits it."""
+    return find_axis(model.Q, model.N, _spin_tau(model, cfg), cfg.spin_sep, cfg.spin_profile)
+
+
 def test_tracker_leaves_a_prism_alone_only_when_on():
     Q, N, _ = _prism()
     model = SimpleNamespace(Q=Q, N=N)
     n = 5
     on = TrackingConfig(spin_flat_kappa=KAPPA)
-    res = _flat_faced(model, on, n)
+    res = _flat_faced(model, on, _tracker_axis(model, on), n)
     assert res is not None and not res.is_revolution and not res.observable
     assert res.theta.shape == (n,) and not res.theta.any() and not res.axis_O.any()
     obs = [SimpleNamespace(spin_feats=None, P_W=np.zeros((0, 3))) for _ in range(n)]
@@ -95,7 +100,8 @@ def test_tracker_leaves_a_prism_alone_only_when_on():
     assert np.array_equal(X, X0)
     assert _spin_closure(obs, X, model, TrackingConfig(spin_flat_kappa=0.0)).is_revolution  # off: taken for one
     Qb, Nb = _bottle(0.0, 0.2)
-    assert _flat_faced(SimpleNamespace(Q=Qb, N=Nb), on, n) is None  # a bottle proceeds
+    bottle = SimpleNamespace(Q=Qb, N=Nb)
+    assert _flat_faced(bottle, on, _tracker_axis(bottle, on), n) is None  # a bottle proceeds
 
 
 def test_config_validates_flat_kappa():
