@@ -33,9 +33,6 @@ settled frame with the turn about the leading bottom edge as one more start and 
 as good (``resettle_tip_tol``). After the gauge, the settled stretch of every landing checked is laid
 flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
 registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
-Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast
-on the face it rests on (``kf_still_speed``, ``_defer_keyframe``); edge points, whose normals blend two faces, are
-dropped (``crease_dist``, ``geometry.crease_points``) and ICP pairs need compatible normals (``icp_normal_cos``).
 Frames never tracked keep tracked=False and get poses interpolated (slerp/lerp) between tracked neighbours.
 O: origin at the centroid of frame 0's object points in W, axes parallel to W (docs/conventions.md).
 """
@@ -48,7 +45,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from service.tracking.geometry import (IcpResult, backproject, crease_points, depth_continuous, icp,
+from service.tracking.geometry import (IcpResult, backproject, depth_continuous, icp,
                                        pixel_normals, ransac_rigid)
 from service.tracking.types import TrackingConfig
 from service.tracking.voxels import group_sums, voxel_groups
@@ -149,8 +146,6 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
     N_W = N_C @ R.T
     # the table next to the object's base has continuous depth and leaks in with the mask boundary
     above = (P_W[:, 2] > session.table_height + cfg.table_clearance) & ~near_effector(session, i, P_W, cfg)
-    if cfg.crease_dist > 0:  # edge points: their normals blend two faces (geometry.crease_points)
-        above &= ~crease_points(P_W, N_W, cfg.crease_dist, cfg.crease_cos)
     P_W, N_W = P_W[above], N_W[above]
     kp_W = np.zeros((0, 3))
     desc = None
@@ -216,33 +211,6 @@ def _jump(X_a: np.ndarray, X_b: np.ndarray, dt: float, cfg: TrackingConfig) -> b
     dist, ang = pose_distance(X_a, X_b)
     dt = max(float(dt), 1e-6)
     return dist / dt > cfg.max_speed or ang / dt > cfg.max_rate_deg
-
-
-def _defer_keyframe(X_a: np.ndarray, X_i: np.ndarray, X_kf: np.ndarray, dt: float, far: bool, new_surface: bool,
-                    n_deferred: int, cfg: TrackingConfig) -> bool:
-    """True when frame i, a keyframe candidate (``far`` from every keyframe and/or showing ``new_surface``), should
-    wait (``kf_still_speed`` set): the object moves faster than kf_still_speed (m/s) or kf_still_rate_deg (°/s)
-    from the last tracked pose X_a, dt seconds before, AND it slides on the face it rests on — its vertical axis
-    within kf_still_tilt_deg of the last keyframe's X_kf (None: any motion) — AND fewer than kf_still_max_frames
-    frames in a row have waited. A pose tracked during an impulsive slide lags (ICP from the constant-velocity
-    prediction stops 5–10° short) and a keyframe taken there puts that lag into the model, where it stays along the
-    directions the overlaps do not fix (sliding along a box face); the frame at rest after the slide is far from
-    every keyframe and is taken instead. A tipping object (topple) shows new faces during the turn and keeps its
-    keyframes; new-surface keyframes wait too unless kf_still_new is False."""
-    if cfg.kf_still_speed is None or n_deferred >= cfg.kf_still_max_frames:
-        return False
-    if new_surface and not far and not cfg.kf_still_new:
-        return False
-    dt = max(float(dt), 1e-6)
-    step_m, step_deg = pose_distance(X_a, X_i)
-    if step_m / dt <= cfg.kf_still_speed and step_deg / dt <= cfg.kf_still_rate_deg:
-        return False  # nearly still: no lag
-    if cfg.kf_still_tilt_deg is not None:
-        z = np.array([0.0, 0.0, 1.0])
-        c = float(np.clip((X_i[:3, :3].T @ z) @ (X_kf[:3, :3].T @ z), -1.0, 1.0))
-        if np.degrees(np.arccos(c)) > cfg.kf_still_tilt_deg:
-            return False  # tipping: new faces come into view, keyframes are needed during the turn
-    return True
 
 
 def near_effector(session, i: int, P_W: np.ndarray, cfg: TrackingConfig) -> np.ndarray:
@@ -354,9 +322,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     n_feat = np.zeros((N, 2), int)
 
     X_CW = X_inv(session.X_WC)
-    icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist,
-                  normal_cos=cfg.icp_normal_cos)
-    n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
+    icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist)
     landings: list = []  # resettle.Landing of every topple landing checked (cfg.resettle)
     for i in range(1, N):
         o = observe(session, i, cfg, rng)
@@ -386,13 +352,13 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 dt, da = pose_distance(best.X_WO, Xc)
                 if dt < 0.01 and da < 5.0:
                     continue  # this start converges to the pose already found
-            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw)
+            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, **icp_kw)
             if _better(r, best):
                 best = r
         if a != i - 1 and not _good(best, cfg):
             # re-localisation: wider search from the last tracked pose and every keyframe pose
             for kf in keyframes[::-1][:8]:
-                r = icp(o.P_W, kf.X_WO, model.tree, model.Q, model.N, N_src=o.N_W,
+                r = icp(o.P_W, kf.X_WO, model.tree, model.Q, model.N,
                         **{**icp_kw, "dist0": 2 * cfg.icp_dist0})
                 if _better(r, best):
                     best = r
@@ -413,12 +379,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         dists = [pose_distance(kf.X_WO, X[i]) for kf in keyframes]
         far = min(max(d / cfg.kf_dist, ang / cfg.kf_angle_deg) for d, ang in dists) >= 1.0
         new_frac = float(np.mean(best.nn_dist > cfg.inlier_dist))
-        still = True
-        if cfg.kf_still_speed is not None and (far or new_frac > cfg.kf_new_frac):
-            still = not _defer_keyframe(X[a], X[i], keyframes[-1].X_WO, session.frame_times[i] - session.frame_times[a],
-                                        far, new_frac > cfg.kf_new_frac, n_defer, cfg)
-            n_defer = 0 if still else n_defer + 1
-        if still and best.inlier_frac >= cfg.kf_min_inlier_frac and (far or new_frac > cfg.kf_new_frac):
+        if best.inlier_frac >= cfg.kf_min_inlier_frac and (far or new_frac > cfg.kf_new_frac):
             near = best.nn_dist < cfg.grow_dist
             X_OW = X_inv(X[i])
             consistent = True
@@ -460,7 +421,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             for k in range(1, len(keyframes)):
                 others = _model_from([kf for j, kf in enumerate(keyframes) if j != k], cfg.model_voxel)
                 kf = keyframes[k]
-                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, N_src=kf.N_W, **{**icp_kw, "dist0": 0.015})
+                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, **{**icp_kw, "dist0": 0.015})
                 if _good(r, cfg):
                     _place_keyframe(kf, r.X_WO, carver)
             model = _model_from(keyframes, cfg.model_voxel)
@@ -470,7 +431,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             if len(o.P_W) < cfg.min_points:
                 continue
             start = X[i]
-            r = icp(o.P_W, start, model.tree, model.Q, model.N, N_src=o.N_W,
+            r = icp(o.P_W, start, model.tree, model.Q, model.N,
                     **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
             X[i], frac[i], rmse[i] = r.X_WO, r.inlier_frac, r.rmse
             tracked[i] = _good(r, cfg)
@@ -776,7 +737,7 @@ def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
                     starts.append(poses[k])
             best, best_ok, fits = None, False, []
             for Xs in starts:
-                r = icp(o.P_W, Xs, model.tree, model.Q, model.N, N_src=o.N_W, **{**icp_kw, "dist0": 0.02})
+                r = icp(o.P_W, Xs, model.tree, model.Q, model.N, **{**icp_kw, "dist0": 0.02})
                 ok = _good(r, cfg) and consistent(r.X_WO)
                 fits.append((r, ok))
                 if best is None or (ok and not best_ok) or (ok == best_ok and _better(r, best)):
@@ -1062,7 +1023,7 @@ def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Ke
     object (``service.tracking.gauge``)."""
     if len(o0.P_W) < cfg.min_points:
         return model
-    r = icp(o0.P_W, X[0], model.tree, model.Q, model.N, N_src=o0.N_W,
+    r = icp(o0.P_W, X[0], model.tree, model.Q, model.N,
             **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
     X0_hat = r.X_WO if _good(r, cfg) else None
     if cfg.gauge_frames > 0 and obs is not None and tracked is not None and session is not None:

@@ -113,12 +113,6 @@ class TrackingConfig:
     kf_min_new_add: float = 0.02  # ... and at least this fraction are off-model points it adds (within grow_dist,
     # not seen through); without it, points that are never added keep the trigger on in every frame
     kf_min_inlier_frac: float = 0.5
-    # if kf_still_speed is set (m/s; 0.1 tried, off), a keyframe candidate waits while the object moves faster than
-    # it or kf_still_rate_deg (°/s) and slides on its face (kf_still_tilt_deg below; tracker._defer_keyframe): poses
-    # tracked during an impulsive motion lag (strike session 511: 5–10°) and poison the model. Without the tilt
-    # condition it broke topple 703 (2.03° -> 8.8°); with it 2.39° (docs/tracking.md, "Strike sessions")
-    kf_still_speed: float | None = None
-    kf_still_rate_deg: float = 60.0
     grow_dist: float = 0.015  # points farther than this from the model are not added (mask noise)
     refine_rounds: int = 2  # leave-one-out keyframe refinement rounds after the bundle adjustment (0: off)
     ba_iters: int = 10  # keyframe bundle adjustment (service.tracking.posegraph) iterations (0: off)
@@ -163,19 +157,6 @@ class TrackingConfig:
     spin_inlier_deg: float = 3.0  # half width of the vote window
     spin_min_votes: int = 8  # fewer votes: the frame's spin is interpolated from its neighbours
     spin_smooth: int = 5  # median filter (frames) of the spin correction
-    # keyframe deferral (kf_still_speed set): only while the object slides on the face it rests on (vertical axis
-    # within this many degrees of the last keyframe's; None: any motion), at most kf_still_max_frames frames in a
-    # row, and new-surface keyframes wait too unless kf_still_new is False (tracker._defer_keyframe)
-    kf_still_tilt_deg: float | None = 5.0
-    kf_still_max_frames: int = 15
-    kf_still_new: bool = True
-    # edges: points with a neighbour within crease_dist whose normal differs by more than arccos(crease_cos) are
-    # dropped from every frame (their normals blend two faces: a chamfer in the model that drags a newly seen face
-    # into it; geometry.crease_points; 0: off), and ICP pairs whose normals differ by more than
-    # arccos(icp_normal_cos) are not matched (0: off)
-    crease_dist: float = 0.0
-    crease_cos: float = 0.85
-    icp_normal_cos: float = 0.0
     # the SDF starts from the hull of the observed points with the voxels a keyframe saw through set outside
     # (visible.carved_init; the mug's mouth and cavity: 708 4.73 -> 3.99 mm, the others unchanged, docs/tracking.md)
     sdf_carve_init: bool = True
@@ -441,8 +422,7 @@ class TrackingConfig:
             if f.type in ("bool", bool) and not isinstance(getattr(self, f.name), (bool, np.bool_)):
                 raise ValueError(f"TrackingConfig.{f.name} must be true or false, not {getattr(self, f.name)!r}")
         for name in ("max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
-                     "spin_border_px", "spin_tol", "spin_inlier_deg", "kf_still_rate_deg", "kf_still_max_frames",
-                     "crease_dist", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
+                     "spin_border_px", "spin_tol", "spin_inlier_deg", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
                      "landing_table_margin", "landing_table_frac", "landing_seen_frac", "spin_lit_frac",
                      "spin_lit_move", "spin_lit_lie_deg", "spin_lit_keep", "spin_view_anchors"):
             if not getattr(self, name) >= 0:
@@ -451,7 +431,7 @@ class TrackingConfig:
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
 
-        for name in ("kf_still_speed", "kf_still_tilt_deg", "track_ransac_thr"):
+        for name in ("track_ransac_thr",):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
         for name in ("track_ransac_px", "track_ransac_kf_px"):
