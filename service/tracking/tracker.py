@@ -4,10 +4,8 @@ Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth,
 1. prediction: constant body-frame velocity from the last two tracked poses;
 2. coarse motion: ORB matches inside the mask against the previous tracked frame and the keyframes (their
    3-D points stored in O), RANSAC over 3-point Kabsch hypotheses gives a candidate X_WO (with
-   ``track_ransac_thr``, off, at a tight threshold first: keypoints on the outline stay put while a small body
-   turns under them, ``_feature_motion``; with ``track_ransac_px``, off, first in the camera: pixels across the
-   ray, ransac_thr along it, ``geometry.ray_inliers``; ``track_ransac_kf_px``, off: a wider band for the keyframe
-   matches, whose prediction carries the keyframe pose's error);
+   ``track_ransac_px``, off, first in the camera: pixels across the ray, ransac_thr along it,
+   ``geometry.ray_inliers``, ``_feature_motion``);
 3. refinement: robust point-to-plane ICP of p_W against the object model built so far (keyframe points
    merged in O on a voxel grid), with the RANSAC inliers as point-to-point terms; from every candidate, the
    best fit (inlier fraction, then residual) wins;
@@ -337,10 +335,10 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             b = last[-2]
             cands.insert(0, X[a] @ (X_inv(X[b]) @ X[a]))  # X_WO(a) · (body-frame step b→a)
         # features: previous tracked frame and keyframes
-        fW, fO, from_kf = _feature_corr(o, obs[a], X[a], keyframes, lost=(a != i - 1), sources=True)
+        fW, fO = _feature_corr(o, obs[a], X[a], keyframes, lost=(a != i - 1))
         feat_W = feat_O = None
         if len(fW) >= max(6, cfg.feat_min_inliers):
-            Xr, inl = _feature_motion(fW, fO, cfg, rng, cam=(session.K, X_CW), from_kf=from_kf)
+            Xr, inl = _feature_motion(fW, fO, cfg, rng, cam=(session.K, X_CW))
             if Xr is not None:
                 Xc = X_inv(Xr)  # fO = Xr fW -> Xr = X_OW
                 cands.append(Xc)
@@ -1079,18 +1077,16 @@ def _model_from(keyframes: list[Keyframe], voxel: float) -> ObjectModel:
     return ObjectModel.build(voxel, parts)
 
 
-def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: list[Keyframe], lost: bool,
-                  sources: bool = False) -> tuple[np.ndarray, ...]:
+def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: list[Keyframe],
+                  lost: bool) -> tuple[np.ndarray, np.ndarray]:
     """3-D correspondences (current point in W, same point in O) from ORB matches: to the previous tracked frame
-    (placed in O with its pose X_prev) first, then to the keyframes (placed with theirs). With ``sources`` also
-    (N,) bool: the match is to a keyframe."""
+    (placed in O with its pose X_prev) first, then to the keyframes (placed with theirs)."""
     A, B = [], []
     if o.desc is None:
-        return (np.zeros((0, 3)), np.zeros((0, 3))) + ((np.zeros(0, bool),) if sources else ())
+        return np.zeros((0, 3)), np.zeros((0, 3))
     X_OW = X_inv(X_prev)
     prev_O = prev.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3]
     m = _match(o.desc, prev.desc)
-    n_prev = len(m)
     if len(m):
         A.append(o.kp_W[m[:, 0]])
         B.append(prev_O[m[:, 1]])
@@ -1101,33 +1097,22 @@ def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: li
             A.append(o.kp_W[m[:, 0]])
             B.append(kf.kp_O[m[:, 1]])
     if not A:
-        return (np.zeros((0, 3)), np.zeros((0, 3))) + ((np.zeros(0, bool),) if sources else ())
-    A, B = np.concatenate(A), np.concatenate(B)
-    return (A, B) + ((np.arange(len(A)) >= n_prev,) if sources else ())
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    return np.concatenate(A), np.concatenate(B)
 
 
 def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np.random.Generator,
-                    cam: tuple[np.ndarray, np.ndarray] | None = None, from_kf: np.ndarray | None = None
-                    ) -> tuple[np.ndarray | None, np.ndarray]:
+                    cam: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray | None, np.ndarray]:
     """RANSAC rigid fit (X_OW, inlier mask) of the tracking loop's ORB correspondences fW (current point, W) ↔ fO
     (same point, O): with ``track_ransac_px`` set and ``cam`` = (K (3,3), X_CW (4,4)) given, first in the camera
-    (within track_ransac_px pixels across the ray, ransac_thr along it: ``geometry.ray_inliers``); then at
-    ``track_ransac_thr`` when set; at ``ransac_thr`` when those find fewer than ``feat_min_inliers`` (or are off).
-    A keypoint whose patch lies on the silhouette or an occluder's edge stays put in the image while a small body
-    turns under it; within the wide threshold of a surface that moved less than it (a 3 cm egg turning 5°/frame:
-    2.6 mm) it joins the consensus and pulls the fit toward no motion. With ``track_ransac_kf_px`` and ``from_kf``
-    (N,) bool (the match is to a keyframe) given, the keyframe matches' band across the ray is that instead: their
-    prediction carries the keyframe pose's error relative to the previous frame's besides the keypoint's noise."""
+    (within track_ransac_px pixels across the ray, ransac_thr along it: ``geometry.ray_inliers``); at ``ransac_thr``
+    when that finds fewer than ``feat_min_inliers`` (or is off). A keypoint whose patch lies on the silhouette or an
+    occluder's edge stays put in the image while a small body turns under it; within the 1 cm ball of a surface that
+    moved less than it (a 3 cm egg turning 5°/frame: 2.6 mm) it joins the consensus and pulls the fit toward no
+    motion; across the ray it is several pixels from where the surface's motion predicts it."""
     if cfg.track_ransac_px is not None and cam is not None:
-        px = cfg.track_ransac_px
-        if cfg.track_ransac_kf_px is not None and from_kf is not None:
-            px = np.where(from_kf, float(cfg.track_ransac_kf_px), float(cfg.track_ransac_px))
         Xr, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers,
-                               cam=(cam[0], cam[1], px))
-        if Xr is not None:
-            return Xr, inl
-    if cfg.track_ransac_thr is not None:
-        Xr, inl = ransac_rigid(fW, fO, cfg.track_ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
+                               cam=(cam[0], cam[1], cfg.track_ransac_px))
         if Xr is not None:
             return Xr, inl
     return ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)

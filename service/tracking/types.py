@@ -78,27 +78,14 @@ class TrackingConfig:
     ransac_thr: float = 0.01
     feat_min_inliers: int = 12  # fewer RANSAC inliers among the ORB matches: no feature candidate or terms (6 matches
     # of a repeated texture gave a consistent wrong pose, 56° off, on a still box: strike session 511)
-    # tracking loop, ORB matches (tracker._feature_motion): RANSAC first at track_ransac_thr (m; None: off, ransac_thr
-    # only), ransac_thr when that finds fewer than feat_min_inliers. A static keypoint on the silhouette or an
-    # occluder's edge (its patch follows the outline, not the surface) stays within 1 cm of where a turning small body
-    # moves it (development eggs: the surface moves 3.4-5.4 mm/frame), so the 1 cm consensus keeps it and the fit lags.
-    # Off: 0.004 gained on 3 of 4 development eggs (27-37 -> 18-27 deg median) and lost on the evaluation egg 707
-    # (6.91 -> 9.68 deg), 704 and 709 (docs/tracking.md, "The loop's lag in a fast roll")
-    track_ransac_thr: float | None = None
     # tracking loop, ORB matches: the consensus measured in the camera (geometry.ray_inliers): a match is an inlier when
     # its keypoint lies within track_ransac_px pixels of the prediction across the ray and ransac_thr along it (the depth
-    # reading); None: off (the isotropic ransac_thr ball). First, before track_ransac_thr / ransac_thr, which take over
-    # when it finds fewer than feat_min_inliers. Development eggs: of the 1 cm consensus's inliers in a roll 38 % do not
+    # reading); None: off (the isotropic ransac_thr ball). First, before ransac_thr, which takes over when it finds
+    # fewer than feat_min_inliers. Development eggs: of the 1 cm consensus's inliers in a roll 38 % do not
     # follow the surface (keypoints 2-8 px from where it moved them, within 1 cm: 7.7 px at 0.8 m across the ray).
     # Off: 2 px gained on 18 of 22 development eggs and on 704, 710, 711, and lost on the evaluation 703 and 707
     # (docs/tracking.md, "Eggs: why the loop's increment in a roll is short")
     track_ransac_px: float | None = None
-    # with track_ransac_px: the band across the ray (pixels) for the matches to keyframes; None: track_ransac_px for
-    # every match. A keyframe match predicts the keypoint from the keyframe's pose, whose error relative to the
-    # previous frame's (the chain's drift since the keyframe, 1-3 mm) adds to the keypoint's own noise; at 2 px the
-    # consensus keeps the previous frame's matches and drops a third of the right keyframe matches, so a push's lag is
-    # no longer pulled back to the keyframes (docs/tracking.md, "Where else the camera consensus loses"). Off.
-    track_ransac_kf_px: float | None = None
     min_inlier_frac: float = 0.35  # below: lost track
     max_rmse: float = 0.006  # above: lost track
     max_speed: float = 1.5  # a pose farther than this (m/s) or
@@ -431,13 +418,9 @@ class TrackingConfig:
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
 
-        for name in ("track_ransac_thr",):
-            if getattr(self, name) is not None and not getattr(self, name) >= 0:
-                raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
-        for name in ("track_ransac_px", "track_ransac_kf_px"):
-            v = getattr(self, name)
-            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0):
-                raise ValueError(f"TrackingConfig.{name} must be None or > 0 (pixels), not {v!r}")
+        v = self.track_ransac_px
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0):
+            raise ValueError(f"TrackingConfig.track_ransac_px must be None or > 0 (pixels), not {v!r}")
         if self.spin_profile not in ("off", "mixed", "multi", "always"):
             raise ValueError("TrackingConfig.spin_profile must be 'off', 'mixed', 'multi' or 'always', "
                              f"not {self.spin_profile!r}")
