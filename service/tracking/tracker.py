@@ -790,18 +790,6 @@ def _spin_tau(model: ObjectModel, cfg: TrackingConfig) -> float:
     return cfg.spin_tau
 
 
-def _body_radius(model: ObjectModel, cfg: TrackingConfig) -> float:
-    """The radius (m) a lying body of revolution rolls on: the 90th percentile of the model points' distances from
-    the spin axis (``spin.find_axis`` with the tracker's settings; 0 when the model is not a body of revolution)."""
-    from service.tracking.spin import find_axis
-
-    is_rev, _, a, c = find_axis(model.Q, model.N, _spin_tau(model, cfg), cfg.spin_sep, cfg.spin_profile)
-    if not is_rev:
-        return 0.0
-    d = model.Q - c
-    return float(np.percentile(np.linalg.norm(d - np.outer(d @ a, a), axis=1), 90))
-
-
 def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig) -> "SpinResult":
     """Re-estimate the spin about the symmetry axis of a body of revolution (``service.tracking.spin``) and apply
     it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture."""
@@ -816,16 +804,10 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
     feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
     common = dict(tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
                   smooth=1 if cfg.spin_twist_smooth > 1 else cfg.spin_smooth,  # twist filtered instead (below)
-                  match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg,
-                  n_view=cfg.spin_view_anchors, view_upright_deg=cfg.spin_view_upright_deg)
+                  match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)
     common["tau"] = tau
     # the axis' direction from the final model, or from data the loop's swing did not smear (spin_axis_from)
     common["axis"] = axis if cfg.spin_axis_from == "model" else _closure_axis(obs, X, model, cfg, axis)
-    if cfg.spin_lit_frac > 0:  # the light's features on a rolling body dropped from the votes (spin.lit_matches)
-        from service.tracking.spin import LitTest
-
-        common["lit"] = LitTest(_body_radius(model, cfg), cfg.spin_lit_frac, cfg.spin_lit_move, cfg.spin_lit_lie_deg,
-                                cfg.spin_lit_keep)
     graph = dict(gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
                  long_votes=cfg.spin_graph_long_votes)
     if cfg.spin_fall and cfg.spin_solver == "mixed":  # the mixed estimate, no spin in topples
@@ -1003,8 +985,7 @@ def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConf
                        fast_span=cfg.spin_mixed_span, fast_rate_deg=cfg.spin_mixed_rate_deg,
                        fast_dilate=cfg.spin_mixed_dilate, fast_votes=cfg.spin_mixed_votes,
                        fall_rate_deg=cfg.spin_fall_rate_deg, fall_min_deg=cfg.spin_fall_min_deg,
-                       fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg,
-                       entry_fit=cfg.spin_fall_entry, **common, **graph)
+                       fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg, **common, **graph)
     return res
 
 

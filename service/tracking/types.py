@@ -263,20 +263,6 @@ class TrackingConfig:
     # correction median-filtered over spin_smooth as before (docs/tracking.md "Twist smoothed instead of the correction";
     # development bottle pivots 911 7.05° -> 4.17°, 553 7.08° -> 3.53° worst frame)
     spin_twist_smooth: int = 15
-    # spin closure (spin.spin_closure, every solver): besides frame 0, the 3 latest and up to 8 older anchors spread
-    # over the session, a frame's spin is voted against this many older anchors whose corrected poses are turned
-    # least from its own (the same view of the body: the view-dependent bias of the votes, keypoints that shift with
-    # the view and depth noise turned into azimuth, is alike at both ends and cancels); 0: off (docs/tracking.md
-    # "Anchors from the nearest views"; off: with 4, evaluation 711 worst 6.26 -> 5.48 deg but 704 median 1.44 -> 2.45,
-    # 2.42 with spin_view_upright_deg below)
-    spin_view_anchors: int = 0
-    # ... and only while the body is upright: a frame whose symmetry axis is more than this from the vertical of W
-    # (lying after a topple, rolling) takes no view anchors, and only upright anchors are candidates. A lying body of
-    # revolution changes its view by rolling about that axis, i.e. by the very spin the chain estimates, so its
-    # "nearest views" are the frames whose estimated spin is nearest (the roll's own preceding frames), not an earlier
-    # measurement of the same view (docs/tracking.md "View anchors only while upright": development topple 1023 median
-    # 2.55 -> 1.82 deg with 4 anchors, off 1.85; pivots unchanged); 90: every frame
-    spin_view_upright_deg: float = 45.0
     # a body of revolution does not turn about its own axis while it topples (service.tracking.fall: no force on it
     # has a moment about the axis): over a topple of the tracked poses (the axis' angle from the vertical changing by
     # more than spin_fall_rate_deg per frame and by >= spin_fall_min_deg in all, trimmed by spin_fall_edge_deg at
@@ -296,27 +282,6 @@ class TrackingConfig:
     # bridge; 0: off (docs/tracking.md "Worst frames of milk-carton topples and bottle pivots")
     spin_pivot_deg: float = 5.0  # on: development bottle pivots 1471 11.13 -> 3.15, 1474 13.84 -> 5.79 deg worst;
     # evaluation 711 1.11 / 6.26 -> 1.15 / 4.16 deg, the others identical
-    # a topple's no-twist stretch (spin_fall) starts from the median corrected twist (tracked twist + correction) of the
-    # last this many chain-voted frames before it (spin.entry_spin: the body standing before a topple does not turn
-    # about its axis either) instead of the raw chain value of its one entry frame, whose ±2-4° jitter at the
-    # topple's onset the stretch would carry to the end of the session (docs/tracking.md "The entry of a topple's
-    # stretch"; 15: evaluation 704 1.44 -> 1.40 deg median, the rest identical; development topples' entry error 1.35
-    # -> 0.53 deg mean, but fresh topples 0.39 -> 0.68 and their medians up to +1.04 deg: off); 0: off, the previous
-    # outputs bit for bit; otherwise >= 3
-    spin_fall_entry: int = 0
-    # the light's features on a rolling body dropped from the spin votes (spin.lit_matches): a body of revolution
-    # lying on the table (axis within spin_lit_lie_deg of the horizontal in both frames of a pair) whose axis line
-    # moved across itself by d >= spin_lit_move (m) turned, by d / R rolling on its radius R (the model's 90th
-    # percentile distance from the axis); matches whose azimuth about the axis line (from the vertical) changed by
-    # less than spin_lit_frac * d / R kept their place under the world-fixed light (shading edges, highlights: a turn
-    # about the axis leaves the shading of a body of revolution unchanged) and are left out of the chain's votes when
-    # enough remain (spin_lit_keep); 0: off (docs/tracking.md "Lit features on a rolling body")
-    # (0.7: development 1022 10.33 / 21.14 -> 6.85 / 10.20 deg, but 1326 7.15 -> 8.69 median; evaluation 704 worst
-    # frame 8.58 -> 6.14, 707 median 6.82 -> 6.91: off)
-    spin_lit_frac: float = 0.0
-    spin_lit_move: float = 0.004
-    spin_lit_lie_deg: float = 15.0
-    spin_lit_keep: float = 0.5  # a frame whose votes the test cuts below this share keeps them all (the body slid)
     # the leading face made perpendicular to the base the object stood on at frame 0 when its fitted normal is within
     # resettle_square_deg of that (resettle.landing_pose; 0: off)
     resettle_square_deg: float = 0.0  # 5: development 820 join 1.42 -> 0.55 deg, median 1.99 -> 1.26 deg
@@ -410,8 +375,7 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{f.name} must be true or false, not {getattr(self, f.name)!r}")
         for name in ("max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
                      "spin_border_px", "spin_tol", "spin_inlier_deg", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
-                     "landing_table_margin", "landing_table_frac", "landing_seen_frac", "spin_lit_frac",
-                     "spin_lit_move", "spin_lit_lie_deg", "spin_lit_keep", "spin_view_anchors"):
+                     "landing_table_margin", "landing_table_frac", "landing_seen_frac"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         for name in ("spin_features", "spin_min_votes", "spin_smooth"):
@@ -451,17 +415,6 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not self.spin_max_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
-        if not (isinstance(self.spin_view_anchors, int) and not isinstance(self.spin_view_anchors, bool)):
-            raise ValueError(f"TrackingConfig.spin_view_anchors must be an int >= 0, not {self.spin_view_anchors!r}")
-        for name, hi in (("spin_lit_frac", 1.0), ("spin_lit_keep", 1.0), ("spin_lit_lie_deg", 90.0)):  # shares, an angle
-            if not getattr(self, name) <= hi:
-                raise ValueError(f"TrackingConfig.{name} must be <= {hi:g}, not {getattr(self, name)!r}")
-        k = self.spin_fall_entry
-        if isinstance(k, bool) or not isinstance(k, int) or not (k == 0 or k >= 3):
-            raise ValueError(f"TrackingConfig.spin_fall_entry must be 0 or an int >= 3, not {self.spin_fall_entry!r}")
-        u = self.spin_view_upright_deg
-        if isinstance(u, bool) or not isinstance(u, (int, float)) or not 0 < u <= 90:
-            raise ValueError(f"TrackingConfig.spin_view_upright_deg must be in (0, 90], not {self.spin_view_upright_deg!r}")
         for name in ("sdf_band_px", "sdf_band_frames", "sdf_contradict_margin"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
