@@ -124,20 +124,18 @@ def _split_tie(lam: np.ndarray, U: np.ndarray, k: int, rel: float = 1e-12) -> tu
     return lam, U
 
 
-def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, trunc: float = 0.003,
-                 fixed_dir: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, trunc: float = 0.003
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Axis (a, c) of a body of revolution refitted to the radius profile of its points Q (M,3), starting from
     (a0, c0): minimise the mean of min(e², trunc²) over the points, e = r − ρ(h) with r, h the radius and height
     about the axis and ρ the least-squares polynomial of degree ``deg`` in h (Nelder–Mead over two tilts of a and
     two shifts of c). Uses positions only, so it holds where the normals' eigen-axis mixes two weak rotations
-    (an egg). ``fixed_dir``: a stays a0, only c moves. Returns (a, c, rms of the truncated residual in m)."""
+    (an egg). Returns (a, c, rms of the truncated residual in m)."""
     from scipy.optimize import minimize
 
     e1, e2 = plane_basis(a0)
 
     def unpack(x):
-        if fixed_dir:
-            return a0, c0 + x[0] * e1 + x[1] * e2
         a = a0 + x[0] * e1 + x[1] * e2
         return a / np.linalg.norm(a), c0 + x[2] * e1 + x[3] * e2
 
@@ -150,7 +148,7 @@ def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, tr
         coef, *_ = np.linalg.lstsq(V, r, rcond=None)
         return float(np.mean(np.minimum((r - V @ coef) ** 2, trunc**2)))
 
-    r = minimize(cost, np.zeros(2 if fixed_dir else 4), method="Nelder-Mead", options=dict(xatol=1e-5, fatol=1e-12, maxiter=2000))
+    r = minimize(cost, np.zeros(4), method="Nelder-Mead", options=dict(xatol=1e-5, fatol=1e-12, maxiter=2000))
     a, c = unpack(r.x)
     return a, c, float(np.sqrt(r.fun))
 

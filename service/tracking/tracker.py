@@ -451,8 +451,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             tilt = _spin_tilt(obs, X, model, spin, cfg)
         if cfg.lie_level:  # a lying body of revolution: axis parallel to the table (service.tracking.lying)
             _level_lying(X, model, spin, session.table_height, cfg)
-        if cfg.spin_rounds > 0:  # egg-like bodies: the closures again on a model rebuilt from the corrected poses
-            spin, tilt, model = _spin_rounds(obs, X, model, keyframes, carver, spin, tilt, session.table_height, cfg)
     X = interpolate_untracked(X, tracked)
     return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings, tilt)
 
@@ -806,8 +804,7 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
                   smooth=1 if cfg.spin_twist_smooth > 1 else cfg.spin_smooth,  # twist filtered instead (below)
                   match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)
     common["tau"] = tau
-    # the axis' direction from the final model, or from data the loop's swing did not smear (spin_axis_from)
-    common["axis"] = axis if cfg.spin_axis_from == "model" else _closure_axis(obs, X, model, cfg, axis)
+    common["axis"] = axis
     graph = dict(gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
                  long_votes=cfg.spin_graph_long_votes)
     if cfg.spin_fall and cfg.spin_solver == "mixed":  # the mixed estimate, no spin in topples
@@ -828,45 +825,6 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
         res = _spin_pivot(res, X, cfg)
     X[:] = apply_spin(X, res)
     return res
-
-
-def _closure_axis(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, axis: tuple
-                  ) -> tuple:
-    """``spin.find_axis``'s result ``axis`` = (is_revolution, λ̂, a, c) on the final model, its axis (a, c) in O
-    replaced by the one ``cfg.spin_axis_from`` names when the model is a body of revolution (docs/tracking.md)."""
-    if not axis[0]:
-        return axis
-    ac = _AXIS_FROM[cfg.spin_axis_from](obs, X, model, cfg, axis[2], axis[3])
-    return axis if ac is None else (axis[0], axis[1], ac[0], ac[1])
-
-
-def _axis_still(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, a0: np.ndarray,
-                c0: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """The axis (a, c) in O of the frames before the body first moves (``spinaxis.still_axis``); None without them."""
-    from service.tracking.spinaxis import still_axis, still_frames
-
-    parts = []
-    R = X[0, :3, :3]  # the body at rest: frame 0's pose (O) for every still frame
-    for i in still_frames(X):
-        if len(obs[i].P_W) >= cfg.min_points:
-            parts.append(((obs[i].P_W - X[0, :3, 3]) @ R, obs[i].N_W @ R))
-    if not parts:
-        return None
-    still = ObjectModel.build(cfg.model_voxel, parts)
-    a, c, _ = still_axis(still.Q, still.N, a0, c0)
-    return a, c
-
-
-def _axis_lying(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, a0: np.ndarray,
-                c0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The axis in O horizontal in the lying frames (``spinaxis.lying_axis``), its point fitted to the model."""
-    from service.tracking.spinaxis import lying_axis, profile_point
-
-    a, _ = lying_axis(X, a0)
-    return a, profile_point(model.Q, a, c0)
-
-
-_AXIS_FROM = {"still": _axis_still, "lying": _axis_lying}
 
 
 def _flat_faced(model: ObjectModel, cfg: TrackingConfig, axis: tuple, n: int) -> "SpinResult | None":
@@ -936,44 +894,6 @@ def _spin_tilt(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, spin: "Sp
                        tol=cfg.spin_tol, min_votes=cfg.spin_min_votes, smooth=cfg.spin_smooth)
     X[:] = apply_tilt(X, res)
     return res
-
-
-def _spin_rounds(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe],
-                 carver: "FreeSpace | None", spin: "SpinResult", tilt: "TiltResult | None", table_z: float,
-                 cfg: TrackingConfig) -> tuple["SpinResult", "TiltResult | None", ObjectModel]:
-    """Up to ``spin_rounds`` more rounds of the closures of an egg-like body (the conditions of ``_spin_tilt`` on the
-    spin: a body of revolution whose axis came from the radius profile, its correction applied and observable). A
-    round places every keyframe at its frame's corrected pose X_WO (in W; O unchanged), rebuilds the model from their
-    points and runs the spin closure, then the tilt closure and the levelling, from the corrected poses X (N,4,4):
-    the model the first closures measured on was built from keyframes attached with the tracking loop's rotations,
-    and its axis is off by what those were off. The round is kept (X in place, the model and results returned)
-    only when its spin correction stays within ``spin_rounds_max_deg`` in every frame: the texture then agrees with
-    the corrected poses and the round refines them; a larger correction is a new estimate on another axis, and the
-    round (with the keyframes' poses and the carver) is undone and the rounds stop."""
-    from service.tracking.spin import revolution_axis
-
-    if spin is None or not spin.is_revolution or spin.rejected or not spin.observable:
-        return spin, tilt, model
-    if revolution_axis(model.Q, model.N, _spin_tau(model, cfg), cfg.spin_sep)[0]:  # one clearly weakest rotation
-        return spin, tilt, model
-    for _ in range(cfg.spin_rounds):
-        before = [kf.X_WO for kf in keyframes]
-        for kf in keyframes:
-            _place_keyframe(kf, X[kf.index].copy(), carver)
-        m2 = _model_from(keyframes, cfg.model_voxel)
-        X2 = X.copy()
-        s2 = _spin_closure(obs, X2, m2, cfg)
-        if (not s2.is_revolution or s2.rejected or not s2.observable
-                or np.max(np.abs(s2.theta)) > np.radians(cfg.spin_rounds_max_deg)):
-            for kf, Xk in zip(keyframes, before):
-                _place_keyframe(kf, Xk, carver)
-            break
-        t2 = _spin_tilt(obs, X2, m2, s2, cfg) if cfg.spin_tilt else None
-        if cfg.lie_level:
-            _level_lying(X2, m2, s2, table_z, cfg)
-        X[:] = X2
-        spin, tilt, model = s2, t2 if t2 is not None else tilt, m2
-    return spin, tilt, model
 
 
 def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, common: dict, graph: dict):

@@ -321,19 +321,6 @@ class TrackingConfig:
     spin_tilt: bool = True  # development eggs 512 7.31 -> 5.54 deg median, 922 17.05 -> 14.39, 924 3.23 -> 1.54
     # (re-measured on the later development eggs: acts on 9 fresh ones, off gains on 3, loses on 2, mixed on 3, level on
     # 1; off gains on 1361, 1362, 1370: kept on; docs/tracking.md "Does the tilt closure still earn its place?")
-    # egg-like bodies (as spin_tilt): after the closures, up to spin_rounds more rounds, each rebuilding the model from
-    # the keyframe points placed at the corrected poses and running the closures again from the corrected poses; a
-    # round is kept only when its spin correction stays within spin_rounds_max_deg in every frame (the texture agrees
-    # with the corrected poses: a refinement, not a new estimate), else it and the later rounds are dropped
-    # (tracker._spin_rounds; 0: off, the default; 2 tried: docs/tracking.md "Eggs: where the loop loses the roll";
-    # development egg 1364 2.16 -> 1.75 deg median, one of the eggs the cap was set on, the six eggs made after it
-    # identical; evaluation egg 707 6.82 / 28.44 -> 6.75 / 28.52, the others identical: no gain beyond noise)
-    spin_rounds: int = 0
-    # the spin closure's axis (service.tracking.tracker._closure_axis): "model" (default) the final model's, refitted
-    # to its radius profile (spin_profile); other names: its direction from data the loop's swing did not smear
-    # (docs/tracking.md "The spin closure's axis from data the loop's swing did not smear")
-    spin_axis_from: str = "model"
-    spin_rounds_max_deg: float = 5.0
     # the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass): the face
     # of the pre-fall model that lies on the table at the settled frame (resettle.landed_face) is laid flush with the
     # table in every frame of the stretch whose pose has it within resettle_flush_deg of flat (resettle.flush_pose:
@@ -388,9 +375,6 @@ class TrackingConfig:
         if self.spin_profile not in ("off", "mixed", "multi", "always"):
             raise ValueError("TrackingConfig.spin_profile must be 'off', 'mixed', 'multi' or 'always', "
                              f"not {self.spin_profile!r}")
-        if self.spin_axis_from not in ("model", "still", "lying"):
-            raise ValueError("TrackingConfig.spin_axis_from must be 'model', 'still' or 'lying', "
-                             f"not {self.spin_axis_from!r}")
         if self.spin_solver not in ("chain", "mixed"):
             raise ValueError(f"TrackingConfig.spin_solver must be 'chain' or 'mixed', not {self.spin_solver!r}")
         if not self.spin_mixed_rate_deg >= 0:
@@ -401,10 +385,6 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_mixed_votes must be >= 0, not {self.spin_mixed_votes!r}")
         if not self.spin_mixed_dilate >= 0:
             raise ValueError(f"TrackingConfig.spin_mixed_dilate must be >= 0, not {self.spin_mixed_dilate!r}")
-        if not (isinstance(self.spin_rounds, int) and self.spin_rounds >= 0):
-            raise ValueError(f"TrackingConfig.spin_rounds must be an int >= 0, not {self.spin_rounds!r}")
-        if not self.spin_rounds_max_deg > 0:
-            raise ValueError(f"TrackingConfig.spin_rounds_max_deg must be > 0, not {self.spin_rounds_max_deg!r}")
         if not (isinstance(self.spin_twist_smooth, int) and self.spin_twist_smooth >= 0):
             raise ValueError(f"TrackingConfig.spin_twist_smooth must be an int >= 0, not {self.spin_twist_smooth!r}")
         for name in ("spin_graph_gate_deg", "spin_graph_rate_deg"):
