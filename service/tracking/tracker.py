@@ -24,9 +24,7 @@ mean over frame 0 and the frames at rest before the robot reaches the object (``
 Topple landings (``resettle``, on): the pre-fall model tipped about its leading bottom edge onto its leading face
 replaces a track far from it a few frames after the landing, the settled frame a keyframe with all its points
 (``service.tracking.resettle``); after the loop the join moves along the tipping direction until the object's base
-is no longer where the settled frames see the table (``resettle_refine_frames``); the leading face is made square to
-the base the object stood on (``resettle_square_deg``, off), a join near a track that does not rest on the table is
-adopted too (``resettle_rest_deg``, off). The fall's frames of an adopted join are registered backwards from the
+is no longer where the settled frames see the table (``resettle_refine_frames``). The fall's frames of an adopted join are registered backwards from the
 settled frame with the turn about the leading bottom edge as one more start and as the judge among fits that are nearly
 as good (``resettle_tip_tol``). After the gauge, the settled stretch of every landing checked is laid
 flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
@@ -476,7 +474,7 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     ``carver`` changed in place), X[i] takes it and frame i becomes a keyframe with all its points; returns (the ICP
     result at the new pose, the new model), else None. Every fall checked is appended to ``landings``."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import Landing, face_offsets, find_fall, landing_pose, reach_along, rest_offsets
+    from service.tracking.resettle import Landing, face_offsets, find_fall, landing_pose, reach_along
 
     ev = find_fall(X, tracked, i, cfg.settle_fast_deg, cfg.settle_fall_deg, cfg.resettle_tip_deg,
                    cfg.resettle_min_tip_deg, cfg.resettle_delay, after=max([ld.i for ld in landings], default=0))
@@ -487,10 +485,8 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     if not pre:
         return None
     M = _model_from(pre, cfg.model_voxel)
-    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height, base_n_O=X[0][:3, :3].T @ [0.0, 0.0, -1.0],
-                            square_deg=cfg.resettle_square_deg)
-    Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift,
-                      max_yaw_deg=cfg.resettle_max_yaw_deg)
+    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height)
+    Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift)
     Xj = reach_along(Xj, M.Q, o.P_W, np.cross(h, [0.0, 0.0, 1.0]), cfg.resettle_max_shift)
     dt, da = pose_distance(X[i], Xj)
     view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
@@ -505,9 +501,6 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     # frame's free space as the tracked one (the pre-fall model placed with it covers no more pixels where the frame
     # sees the table or background); a wrong track need not be shown wrong by that test (its model fits the upper part)
     far = dt > cfg.resettle_min_dist or da > cfg.resettle_min_deg
-    if not far and face and cfg.resettle_rest_deg > 0:  # a tracked pose near the join but not resting on the table
-        off = rest_offsets(X[i], Xj, M.Q, M.N, session.table_height)
-        far = off is not None and (off[0] > cfg.resettle_rest_deg or abs(off[1]) > cfg.resettle_rest_dist)
     adopt = far and face and s_new <= s_old + cfg.resettle_seen
     landings.append(Landing(g0, i, X[i].copy(), Xj.copy(), s_old, s_new, bool(adopt)))
     if not adopt:

@@ -220,7 +220,7 @@ class TrackingConfig:
     # by the fall's physics"): resettle_delay frames after the last fast step of the loop (> settle_fast_deg per
     # frame), when the steps from resettle_tip_deg per frame on turned >= resettle_min_tip_deg about a horizontal
     # axis, the pose of the pre-fall model tipped about its leading bottom edge onto its leading (flat) face (corrected
-    # by the faces both views show, at most resettle_max_shift / resettle_max_yaw_deg; yaw 0: not corrected) replaces
+    # by the faces both views show, at most resettle_max_shift; the yaw is not corrected) replaces
     # the tracked pose when they differ by resettle_min_deg / resettle_min_dist (the join itself is 1-3 deg / 5-18 mm
     # off on the development topples) and the frame sees through at most resettle_seen more of the pre-fall model at
     # the new pose than at the tracked one; the fall's keyframes are dropped, the frame becomes a keyframe with all
@@ -232,7 +232,6 @@ class TrackingConfig:
     resettle_min_deg: float = 8.0
     resettle_min_dist: float = 0.03
     resettle_max_shift: float = 0.03
-    resettle_max_yaw_deg: float = 0.0
     resettle_seen: float = 0.02
     # support closure (visible.support_feet): the SDF's initial hull also takes the foot of every observed surface
     # point on the table plane at frame 0 (the object rests on the table, so the never-seen space below what was
@@ -282,14 +281,6 @@ class TrackingConfig:
     # bridge; 0: off (docs/tracking.md "Worst frames of milk-carton topples and bottle pivots")
     spin_pivot_deg: float = 5.0  # on: development bottle pivots 1471 11.13 -> 3.15, 1474 13.84 -> 5.79 deg worst;
     # evaluation 711 1.11 / 6.26 -> 1.15 / 4.16 deg, the others identical
-    # the leading face made perpendicular to the base the object stood on at frame 0 when its fitted normal is within
-    # resettle_square_deg of that (resettle.landing_pose; 0: off)
-    resettle_square_deg: float = 0.0  # 5: development 820 join 1.42 -> 0.55 deg, median 1.99 -> 1.26 deg
-    # a join within resettle_min_deg / resettle_min_dist of the tracked pose is adopted too when the tracked pose has
-    # the face the join lays on the table more than resettle_rest_deg from flat or resettle_rest_dist above or below
-    # the table (resettle.rest_offsets: a settled object rests on the table; 0: off)
-    resettle_rest_deg: float = 0.0  # 3: development 840 4.65 -> 1.32 deg median, 861 6.97 -> 1.78 deg (3.67 -> 9.49 mm)
-    resettle_rest_dist: float = 0.005
     # a body of revolution lying on the table has its axis parallel to the table plane (its widest straight stretch,
     # the lowest generator line, touches the table): after the spin closure, when the body stood on its base at
     # frame 0 (found axis within lie_level_stand_deg of the vertical: the axis is then the vertical of frame 0) and
@@ -421,16 +412,11 @@ class TrackingConfig:
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
         for name in ("resettle_tip_deg", "resettle_min_tip_deg", "resettle_min_deg", "resettle_min_dist",
-                     "resettle_max_shift", "resettle_max_yaw_deg", "resettle_seen"):
+                     "resettle_max_shift", "resettle_seen"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not self.resettle_delay >= 1:
             raise ValueError(f"TrackingConfig.resettle_delay must be >= 1, not {self.resettle_delay!r}")
-        if not 0.0 <= self.resettle_square_deg < 90.0:
-            raise ValueError(f"TrackingConfig.resettle_square_deg must be in [0, 90), not {self.resettle_square_deg!r}")
-        if not (self.resettle_rest_deg >= 0 and self.resettle_rest_dist > 0):
-            raise ValueError(f"TrackingConfig.resettle_rest_deg must be >= 0 and resettle_rest_dist > 0, not "
-                             f"{self.resettle_rest_deg!r}, {self.resettle_rest_dist!r}")
         for name in ("resettle_flush_deg", "resettle_flush_square_deg"):
             if not 0.0 <= getattr(self, name) < 90.0:
                 raise ValueError(f"TrackingConfig.{name} must be in [0, 90), not {getattr(self, name)!r}")
