@@ -172,7 +172,6 @@ class TrackingConfig:
     landing_table_frac: float = 0.02
     landing_seen_frac: float = 0.05  # ... or more of its points where the frame's depth reading lies behind them
     sdf_band_px: int = 1  # min filter (pixels) of the views' depth for sdf_drop_contradicted (silhouettes do not count)
-    sdf_band_frames: int = 0  # evenly spread tracked frames whose views test the readings (0: the SDF's frames)
     # object rays whose point sdf_contradict_views of the SDF's frames saw in front of their own reading by more than
     # sdf_contradict_margin (min filter sdf_band_px) are dropped (visible.drop_contradicted; flying pixels,
     # misregistered edges; with w_empty 300: 12 evaluation sessions 0.2-1.3 mm better, egg 707 +0.06, docs/tracking.md)
@@ -386,7 +385,7 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not self.spin_max_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
-        for name in ("sdf_band_px", "sdf_band_frames", "sdf_contradict_margin"):
+        for name in ("sdf_band_px", "sdf_contradict_margin"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not self.sdf_contradict_views >= 1:
