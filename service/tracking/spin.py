@@ -198,8 +198,9 @@ def profile_starts(Q: np.ndarray, N: np.ndarray) -> list[tuple[np.ndarray, np.nd
     of each eigen-direction of the scaled point-to-plane normal matrix (``revolution_axis``) that is mostly a
     rotation, each at its screw's axis point and at the centroid of Q. The profile cost is not convex in the axis:
     an egg's three rotations are all weak and their eigen-axes mix, so the weakest one may lie anywhere, and a refit
-    from it can stop in a local minimum across the body (development egg 1002 with the removed ``track_ransac_thr``: from the
-    weakest eigen-axis 1.92 mm RMS, 79° from the long axis; from the centroid or another eigen-axis 1.23 mm, 9°)."""
+    from it can stop in a local minimum across the body (development egg 1002 with the removed ``track_ransac_thr``:
+    from the weakest eigen-axis 1.92 mm RMS, 79° from the long axis; from the centroid or another eigen-axis 1.23 mm,
+    9°)."""
     _, U, Di, ctr = _screw_eig(Q, N)
     out = []
     for u in U.T:

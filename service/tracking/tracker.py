@@ -24,11 +24,12 @@ mean over frame 0 and the frames at rest before the robot reaches the object (``
 Topple landings (``resettle``, on): the pre-fall model tipped about its leading bottom edge onto its leading face
 replaces a track far from it a few frames after the landing, the settled frame a keyframe with all its points
 (``service.tracking.resettle``); after the loop the join moves along the tipping direction until the object's base
-is no longer where the settled frames see the table (``resettle_refine_frames``). The fall's frames of an adopted join are registered backwards from the
-settled frame with the turn about the leading bottom edge as one more start and as the judge among fits that are nearly
-as good (``resettle_tip_tol``). After the gauge, the settled stretch of every landing checked is laid
-flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
-registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
+is no longer where the settled frames see the table (``resettle_refine_frames``). The fall's frames of an adopted
+join are registered backwards from the settled frame with the turn about the leading bottom edge as one more start
+and as the judge among fits that are nearly as good (``resettle_tip_tol``). After the gauge, the settled stretch of
+every landing checked is laid flush with the table on the face the pre-fall model lands on, the stretch's keyframes
+moved with it, and its frames registered again in the turns about the vertical and horizontal shifts of a resting
+object (``resettle_flush_deg``, on).
 Frames never tracked keep tracked=False and get poses interpolated (slerp/lerp) between tracked neighbours.
 O: origin at the centroid of frame 0's object points in W, axes parallel to W (docs/conventions.md).
 """

@@ -351,7 +351,8 @@ class TrackingConfig:
             if f.type in ("bool", bool) and not isinstance(getattr(self, f.name), (bool, np.bool_)):
                 raise ValueError(f"TrackingConfig.{f.name} must be true or false, not {getattr(self, f.name)!r}")
         for name in ("max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
-                     "spin_border_px", "spin_tol", "spin_inlier_deg", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
+                     "spin_border_px", "spin_tol", "spin_inlier_deg", "gauge_frames", "gauge_max_deg",
+                     "gauge_max_dist", "gauge_ee_margin",
                      "landing_table_margin", "landing_table_frac", "landing_seen_frac"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
