@@ -11,7 +11,7 @@ Entry point ``run(TrackingInputs, TrackingConfig, *, progress=None) -> TrackingO
    free space (``visible.carved_init``; with ``sdf_support_hull`` the hull also takes the seen points' feet on the
    table, but not under a cavity seen into from above), marching cubes -> visible mesh;
 4. visible set V (``service.tracking.visible``): convex-hull points of the mesh that pass a visibility check.
-See docs/tracking.md.
+See docs/tracking.md (what the stage does now) and docs/tracking-findings.md (the experiments).
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ bottle topples (development seeds 521, 531, 571, 850; ground truth read by the d
 axis over the whole topple (about 35 frames, the axis turning 90°) is 0.6-2°, while the tracker adds a false
 spin of 0.5-0.8° per degree of tilt while the bottle starts to tip (about 1° of tilt per frame) and up to
 4°/frame in the fast fall (development 531: −27°, 850: +41° by the landing), which the texture (``spin``: chain,
-graph) follows only partly (531: 19° of the 27°, 850: 26° of 41°; docs/tracking.md "Fall without spin").
+graph) follows only partly (531: 19° of the 27°, 850: 26° of 41°; docs/tracking-findings.md "Fall without spin").
 
 Topple frames (``topple_frames``). With the tracked poses X_WO(i) and the axis a in O, τ(i) = the angle of
 R_WO(i) a from the vertical (0° standing, 90° lying), median-filtered over 5 frames. A frame moves when τ changes by

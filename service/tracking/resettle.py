@@ -2,12 +2,12 @@
 
 A topple ends with 1–3 frames turning 14–16° each while the occluder may hide most of the object; the tracking
 loop can lose the object there and carry on at a consistent wrong pose (development milk_carton topple 820:
-107 mm / 9° off from the landing to the end). A re-localisation of the settled object against the pre-fall model
-cannot fix it: the pre-fall model holds mostly the object's upper part, the settled view mostly surface never seen
-before (the former ``settle`` option, docs/tracking.md), and the lab's six-tile print gives no ORB match between
-the two views either (no side is seen both before and after the fall in those sessions). What they do share is the
-motion between them: a topple is a rotation about the bottom edge on the table in the direction it started to tip,
-ending when the side face that led lies on the table.
+107 mm / 9° off from the landing to the end). A re-localisation of the settled object against the pre-fall model cannot
+fix it: the pre-fall model holds mostly the object's upper part, the settled view mostly surface never seen before (the
+former ``settle`` option, docs/tracking-findings.md), and the lab's six-tile print gives no ORB match between the two
+views either (no side is seen both before and after the fall in those sessions). What they do share is the motion
+between them: a topple is a rotation about the bottom edge on the table in the direction it started to tip, ending when
+the side face that led lies on the table.
 
 Mechanism (in the tracking loop, ``tracker._resettle_check``):
 1. Detection (``find_fall``): frame i is tracked ``delay`` frames after the last fast step of the loop (a step
@@ -36,7 +36,7 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    no longer lies where the settled frames see the table or background (``base_shift``); the lab's cartons land
    6–15 mm beyond the pure turn about the edge, and after the topple the base faces −f, behind the object.
 5. (Removed options: the leading face squared to the base, a join near a track that does not rest on the table
-   adopted; docs/tracking.md.)
+   adopted; docs/tracking-findings.md.)
 6. After the gauge (``tracker._resettle_flush``, ``resettle_flush_deg``): in the settled stretch of every landing
    checked (adopted or not) the face of the pre-fall model lying on the table (``landed_face``, its normal squared to
    the base the object stood on) is laid flush with the table (``flush_pose``: an object at rest on a face has it on
@@ -211,7 +211,7 @@ def face_offsets(X: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, P_W: np.ndarra
     to the frame's points with normals within 20°; per face the difference of plane offsets (median) along its
     normal; the horizontal translation solves those in least squares. Corrections above ``max_shift`` are left out.
     The turn about the vertical is not corrected (a yaw from the matched normals made two of three development joins
-    worse: docs/tracking.md, "Worst frames of l_block 702 and milk_carton topple 710")."""
+    worse: docs/tracking-findings.md, "Worst frames of l_block 702 and milk_carton topple 710")."""
     R, t = X[:3, :3], X[:3, 3]
     Qw = Q_O @ R.T + t
     Nw = N_O @ R.T

@@ -42,7 +42,7 @@ class TrackingOutputs:
 def _visible_sdf() -> SdfConfig:
     # the visible SDF weighs space seen empty 300 (BundleSDF: 1): vertices the band of other readings and the hull
     # start left in space the frames had seen empty carried 36-50 % of the error of the prism and the mug
-    # (docs/tracking.md, "free space seen by other frames as evidence"); the fusion stage has its own SdfConfig
+    # (docs/tracking-findings.md, "free space seen by other frames as evidence"); the fusion stage has its own SdfConfig
     return SdfConfig(w_empty=300.0)
 
 
@@ -84,7 +84,7 @@ class TrackingConfig:
     # fewer than feat_min_inliers. Development eggs: of the 1 cm consensus's inliers in a roll 38 % do not
     # follow the surface (keypoints 2-8 px from where it moved them, within 1 cm: 7.7 px at 0.8 m across the ray).
     # Off: 2 px gained on 18 of 22 development eggs and on 704, 710, 711, and lost on the evaluation 703 and 707
-    # (docs/tracking.md, "Eggs: why the loop's increment in a roll is short")
+    # (docs/tracking-findings.md, "Eggs: why the loop's increment in a roll is short")
     track_ransac_px: float | None = None
     min_inlier_frac: float = 0.35  # below: lost track
     max_rmse: float = 0.006  # above: lost track
@@ -122,7 +122,7 @@ class TrackingConfig:
     # of the mask's interior (visible.blended_pixels: a sensor's blend of object and background), get a band of
     # sdf_silhouette_back (m) behind their reading instead of the fit's τ, or with sdf_silhouette_drop no ray at all.
     # Off: on the real cube video the blended readings make its long extent, but every variant loses on the
-    # synthetic development sessions (docs/tracking.md, "The real cube's long extent")
+    # synthetic development sessions (docs/tracking-findings.md, "The real cube's long extent")
     sdf_silhouette_px: int = 0
     sdf_silhouette_back: float = 0.0
     sdf_silhouette_margin: float | None = None
@@ -134,7 +134,7 @@ class TrackingConfig:
     # geometry cannot see, re-estimated per frame from ORB keypoints well inside the mask matched against frame 0
     # and earlier corrected frames; only when the final model's weakest direction is a rotation (λ̂ < spin_tau).
     # On: bottle topple 704 20.5° -> 6.0° median rotation error, egg 707 10.4° -> 6.8°, bottle pivot 711 1.77° ->
-    # 1.47°, mug 708 1.21° -> 0.74°; other sessions and the real cube identical (docs/tracking.md)
+    # 1.47°, mug 708 1.21° -> 0.74°; other sessions and the real cube identical (docs/tracking-findings.md)
     spin_closure: bool = True
     spin_tau: float = 0.03  # λ̂ below which the model counts as a body of revolution (1/3: fully constrained)
     spin_sep: float = 0.5  # ... and at most this times the next eigenvalue (one weak direction, not a near-sphere)
@@ -145,21 +145,22 @@ class TrackingConfig:
     spin_min_votes: int = 8  # fewer votes: the frame's spin is interpolated from its neighbours
     spin_smooth: int = 5  # median filter (frames) of the spin correction
     # the SDF starts from the hull of the observed points with the voxels a keyframe saw through set outside
-    # (visible.carved_init; the mug's mouth and cavity: 708 4.73 -> 3.99 mm, the others unchanged, docs/tracking.md)
+    # (visible.carved_init; the mug's mouth and cavity: 708 4.73 -> 3.99 mm, the others unchanged,
+    # docs/tracking-findings.md)
     sdf_carve_init: bool = True
     sdf_carve_value: float = 0.005  # S (m) given to those voxels
-    # spin closure: axis of a model whose weak rotations mix (an egg) refitted to its radius profile ("mixed"),
-    # every axis so ("always") or none ("off"); "multi": as "mixed", the refit started from every rotation eigen-axis
-    # too (spin.profile_starts), the best profile fit kept (egg 707 6.91 -> 6.82 deg median, 30.39 -> 28.44 worst; the
-    # other evaluation sessions identical; development egg 1002 29.49 -> 13.09, docs/tracking.md); a correction above
+    # spin closure: axis of a model whose weak rotations mix (an egg) refitted to its radius profile ("mixed"), every
+    # axis so ("always") or none ("off"); "multi": as "mixed", the refit started from every rotation eigen-axis too
+    # (spin.profile_starts), the best profile fit kept (egg 707 6.91 -> 6.82 deg median, 30.39 -> 28.44 worst; the other
+    # evaluation sessions identical; development egg 1002 29.49 -> 13.09, docs/tracking-findings.md); a correction above
     # spin_max_deg in any frame is not applied (0: no cap)
     spin_profile: str = "multi"
     spin_max_deg: float = 120.0
-    # gauge of the body frame (service.tracking.gauge): X̂_0 = robust mean of frame 0's registration to the final
-    # model and of the final poses of up to gauge_frames frames at rest — before the end effector comes within
-    # ee_radius + gauge_ee_margin of the model, within gauge_max_deg / gauge_max_dist of frame 0 (0: frame 0 alone;
-    # no robot data: frame 0 alone).
-    # On: l_block 702 2.72° / 5.40° -> 1.59° / 4.04°, no material loss elsewhere (docs/tracking.md, "Worst frames")
+    # gauge of the body frame (service.tracking.gauge): X̂_0 = robust mean of frame 0's registration to the final model
+    # and of the final poses of up to gauge_frames frames at rest — before the end effector comes within ee_radius +
+    # gauge_ee_margin of the model, within gauge_max_deg / gauge_max_dist of frame 0 (0: frame 0 alone; no robot data:
+    # frame 0 alone). On: l_block 702 2.72° / 5.40° -> 1.59° / 4.04°, no material loss elsewhere
+    # (docs/tracking-findings.md, "Worst frames")
     gauge_frames: int = 30
     gauge_max_deg: float = 5.0
     gauge_max_dist: float = 0.01
@@ -174,7 +175,8 @@ class TrackingConfig:
     sdf_band_px: int = 1  # min filter (pixels) of the views' depth for sdf_drop_contradicted (silhouettes do not count)
     # object rays whose point sdf_contradict_views of the SDF's frames saw in front of their own reading by more than
     # sdf_contradict_margin (min filter sdf_band_px) are dropped (visible.drop_contradicted; flying pixels,
-    # misregistered edges; with w_empty 300: 12 evaluation sessions 0.2-1.3 mm better, egg 707 +0.06, docs/tracking.md)
+    # misregistered edges; with w_empty 300: 12 evaluation sessions 0.2-1.3 mm better, egg 707 +0.06,
+    # docs/tracking-findings.md)
     sdf_drop_contradicted: bool = True
     sdf_contradict_margin: float = 0.005
     sdf_contradict_views: int = 3  # ... by at least this many frames
@@ -187,7 +189,7 @@ class TrackingConfig:
     # spin.spin_links, solve_spin_graph: spin_graph_short links to the nearest earlier frames, plus longer links only
     # between frames whose views differ by less than spin_graph_gate_deg and by at most spin_graph_rate_deg per frame
     # between them; links need spin_graph_votes votes — over fast stretches where the chain has few votes: 704
-    # 17.3°/22.0° -> 5.2°/7.9°, 707, 708, 711 within 0.05° median; docs/tracking.md "Mixed spin estimate")
+    # 17.3°/22.0° -> 5.2°/7.9°, 707, 708, 711 within 0.05° median; docs/tracking-findings.md "Mixed spin estimate")
     spin_solver: str = "mixed"
     spin_graph_gate_deg: float = 10.0
     spin_graph_rate_deg: float = 0.5  # 0: no rate test
@@ -197,7 +199,7 @@ class TrackingConfig:
     # spin_solver "mixed" (spin.spin_mixed): the chain, except in fast stretches — tracked rotation above
     # spin_mixed_rate_deg per frame over spin_mixed_span frames, widened by spin_mixed_dilate frames each side — where
     # the chain pooled fewer than spin_mixed_votes votes: those frames (widened again) take the graph's increments
-    # (docs/tracking.md, "Mixed spin estimate")
+    # (docs/tracking-findings.md, "Mixed spin estimate")
     spin_mixed_rate_deg: float = 2.0
     spin_mixed_span: int = 4
     spin_mixed_dilate: int = 4
@@ -215,15 +217,15 @@ class TrackingConfig:
     mask_trim_iters: int = 3
     mask_trim_deep_px: int = 3
     mask_trim_min: float = 0.01
-    # the settled object after a topple's landing (service.tracking.resettle; docs/tracking.md "Settled object joined
-    # by the fall's physics"): resettle_delay frames after the last fast step of the loop (> settle_fast_deg per
-    # frame), when the steps from resettle_tip_deg per frame on turned >= resettle_min_tip_deg about a horizontal
-    # axis, the pose of the pre-fall model tipped about its leading bottom edge onto its leading (flat) face (corrected
-    # by the faces both views show, at most resettle_max_shift; the yaw is not corrected) replaces
-    # the tracked pose when they differ by resettle_min_deg / resettle_min_dist (the join itself is 1-3 deg / 5-18 mm
-    # off on the development topples) and the frame sees through at most resettle_seen more of the pre-fall model at
-    # the new pose than at the tracked one; the fall's keyframes are dropped, the frame becomes a keyframe with all
-    # its points and the fall is registered backwards from it
+    # the settled object after a topple's landing (service.tracking.resettle; docs/tracking-findings.md "Settled object
+    # joined by the fall's physics"): resettle_delay frames after the last fast step of the loop (> settle_fast_deg per
+    # frame), when the steps from resettle_tip_deg per frame on turned >= resettle_min_tip_deg about a horizontal axis,
+    # the pose of the pre-fall model tipped about its leading bottom edge onto its leading (flat) face (corrected by the
+    # faces both views show, at most resettle_max_shift; the yaw is not corrected) replaces the tracked pose when they
+    # differ by resettle_min_deg / resettle_min_dist (the join itself is 1-3 deg / 5-18 mm off on the development
+    # topples) and the frame sees through at most resettle_seen more of the pre-fall model at the new pose than at the
+    # tracked one; the fall's keyframes are dropped, the frame becomes a keyframe with all its points and the fall is
+    # registered backwards from it
     resettle: bool = True  # on: evaluation 710 15.69 deg / 58.55 mm -> 2.72 deg / 6.31 mm median, all others identical
     resettle_delay: int = 6
     resettle_tip_deg: float = 0.3
@@ -236,7 +238,7 @@ class TrackingConfig:
     # point on the table plane at frame 0 (the object rests on the table, so the never-seen space below what was
     # seen is object unless a keyframe saw it empty, which the carving then removes); needs below_table_outside.
     # Off: the hidden lower part and the back are closed by the hull of the seen points 1-2 cm above the table.
-    # Acts only with below_table_outside (the plane); on, with sdf_support_open and its gate (docs/tracking.md)
+    # Acts only with below_table_outside (the plane); on, with sdf_support_open and its gate (docs/tracking-findings.md)
     sdf_support_hull: bool = True
     # the join moved along the tipping direction by the settled segment's own evidence (tracker._resettle_refine,
     # resettle.base_shift): the base must not lie where the first resettle_refine_frames tracked frames from the settled
@@ -258,15 +260,15 @@ class TrackingConfig:
     # spin closure (spin.smooth_twist): median-filter the corrected twist of the body (its rotation about the axis since
     # frame 0, tracked + correction) over this many frames instead of the correction alone over spin_smooth; the
     # tracker's own twist jitters 1-3° from frame to frame and the correction must carry that; 0 or 1: off, the
-    # correction median-filtered over spin_smooth as before (docs/tracking.md "Twist smoothed instead of the correction";
-    # development bottle pivots 911 7.05° -> 4.17°, 553 7.08° -> 3.53° worst frame)
+    # correction median-filtered over spin_smooth as before (docs/tracking-findings.md "Twist smoothed instead of the
+    # correction"; development bottle pivots 911 7.05° -> 4.17°, 553 7.08° -> 3.53° worst frame)
     spin_twist_smooth: int = 15
     # a body of revolution does not turn about its own axis while it topples (service.tracking.fall: no force on it
     # has a moment about the axis): over a topple of the tracked poses (the axis' angle from the vertical changing by
     # more than spin_fall_rate_deg per frame and by >= spin_fall_min_deg in all, trimmed by spin_fall_edge_deg at
     # both ends) the spin correction takes the increments that leave the tracked rotation no twist about the axis,
     # when the default estimate's spin change over it differs from theirs by more than spin_fall_tol_deg (spin_solver
-    # "mixed" only); docs/tracking.md "Fall without spin"
+    # "mixed" only); docs/tracking-findings.md "Fall without spin"
     spin_fall: bool = True  # on: evaluation 704 5.21 -> 2.08 deg median rotation (worst 7.86 -> 9.73), others identical
     spin_fall_rate_deg: float = 0.4
     spin_fall_min_deg: float = 45.0
@@ -277,7 +279,7 @@ class TrackingConfig:
     # spin_fall_edge_deg, reaches spin_pivot_deg and comes back, the spin correction keeps the tracked rotation free of
     # twist about the axis from the upright frame before the tilt, the difference to the correction of the upright
     # frame after it spread along the tilt, unless the correction already stays within spin_fall_tol_deg of that
-    # bridge; 0: off (docs/tracking.md "Worst frames of milk-carton topples and bottle pivots")
+    # bridge; 0: off (docs/tracking-findings.md "Worst frames of milk-carton topples and bottle pivots")
     spin_pivot_deg: float = 5.0  # on: development bottle pivots 1471 11.13 -> 3.15, 1474 13.84 -> 5.79 deg worst;
     # evaluation 711 1.11 / 6.26 -> 1.15 / 4.16 deg, the others identical
     # a body of revolution lying on the table has its axis parallel to the table plane (its widest straight stretch,
@@ -286,7 +288,7 @@ class TrackingConfig:
     # its profile has a straight widest stretch, every frame with the axis within lie_level_deg of the horizontal (it
     # and its 3 neighbours on each side) and that stretch within lie_level_margin of the table is turned about the
     # horizontal through its centroid's axis point until the axis is horizontal (at most lie_level_max_deg;
-    # service.tracking.lying, docs/tracking.md "Lying body levelled")
+    # service.tracking.lying, docs/tracking-findings.md "Lying body levelled")
     lie_level: bool = True  # on: development 531 4.94 -> 2.68 deg median; evaluation 704 1.91 / 10.05 -> 1.44 / 8.58
     lie_level_stand_deg: float = 15.0
     lie_level_deg: float = 15.0
@@ -296,28 +298,29 @@ class TrackingConfig:
     # model covering a short band of the body fails) is taken for one when its weakest direction is one clear
     # rotation whose normals lie in the meridian planes, κ = Σ (n·(a×d))² / Σ |a×d|² < spin_arc_tau (the motion seen
     # by the surface as a fraction of the arc each point moves), and its radius profile fits within 2 mm
-    # (spin.partial_tau; 0: off; docs/tracking.md "Bodies of revolution seen in part")
+    # (spin.partial_tau; 0: off; docs/tracking-findings.md "Bodies of revolution seen in part")
     spin_arc_tau: float = 0.08  # development partial bottle pivots 940, 941, 943, 944: worst 6.2-7.8 -> 2.5-3.4 deg
     # a model the body-of-revolution test takes for one (spin_tau, spin_arc_tau) is refused when its normals leave the
     # meridian planes about the closure's axis by κ >= spin_flat_kappa (κ as for spin_arc_tau: flat faces, a prism
     # whose spin the λ̂ test, scaled by the model's length, misses); no correction then (spin.flat_faced; 0: off;
-    # docs/tracking.md "Boxes are not bodies of revolution")
+    # docs/tracking-findings.md "Boxes are not bodies of revolution")
     spin_flat_kappa: float = 0.12
-    # egg-like bodies (the spin axis found by its radius profile: every rotation about the centre weak): after the
-    # spin closure, the rotations about the two short axes re-estimated from interior keypoints matched to frame 0
-    # and earlier corrected frames, in the frames whose spin the texture measured, when the model is longer along
-    # its axis than across (service.tracking.tilt; only with spin_closure on; docs/tracking.md "Eggs: where the error comes
-    # from"; the evaluation sessions, egg 707 included, identical bit for bit)
+    # egg-like bodies (the spin axis found by its radius profile: every rotation about the centre weak): after the spin
+    # closure, the rotations about the two short axes re-estimated from interior keypoints matched to frame 0 and
+    # earlier corrected frames, in the frames whose spin the texture measured, when the model is longer along its axis
+    # than across (service.tracking.tilt; only with spin_closure on; docs/tracking-findings.md "Eggs: where the error
+    # comes from"; the evaluation sessions, egg 707 included, identical bit for bit)
     spin_tilt: bool = True  # development eggs 512 7.31 -> 5.54 deg median, 922 17.05 -> 14.39, 924 3.23 -> 1.54
     # (re-measured on the later development eggs: acts on 9 fresh ones, off gains on 3, loses on 2, mixed on 3, level on
-    # 1; off gains on 1361, 1362, 1370: kept on; docs/tracking.md "Does the tilt closure still earn its place?")
-    # the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass): the face
-    # of the pre-fall model that lies on the table at the settled frame (resettle.landed_face) is laid flush with the
-    # table in every frame of the stretch whose pose has it within resettle_flush_deg of flat (resettle.flush_pose:
-    # an object at rest on a face has it on the table; two tilts and the height), the stretch's keyframes moved with
-    # their frames and the model rebuilt, then each frame re-registered in the motions that keep it resting (a turn
-    # about the vertical and a horizontal shift, resettle.planar_register; 0: off)
-    resettle_flush_deg: float = 10.0  # on: development topples: 7 of 7 lower median rotation (docs/tracking.md)
+    # 1; off gains on 1361, 1362, 1370: kept on; docs/tracking-findings.md "Does the tilt closure still earn its
+    # place?") the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass):
+    # the face of the pre-fall model that lies on the table at the settled frame (resettle.landed_face) is laid flush
+    # with the table in every frame of the stretch whose pose has it within resettle_flush_deg of flat
+    # (resettle.flush_pose: an object at rest on a face has it on the table; two tilts and the height), the stretch's
+    # keyframes moved with their frames and the model rebuilt, then each frame re-registered in the motions that keep it
+    # resting (a turn about the vertical and a horizontal shift, resettle.planar_register; 0: off)
+    resettle_flush_deg: float = 10.0  # on: development topples: 7 of 7 lower median rotation
+    # (docs/tracking-findings.md, "Worst frames of l_block 702 and milk_carton topple 710")
     # the landed face's fitted normal made square to the base the object stood on at frame 0 when within
     # resettle_flush_square_deg of it (a side of a prism standing on its base; 0: the fitted normal as it is)
     resettle_flush_square_deg: float = 5.0
