@@ -103,7 +103,7 @@ class SdfConfig:
     threads: int = 1  # torch threads during the fit (small gathers: extra threads mostly contend)
     trunc_back: float | None = None  # depth of the band behind the observed surface (m; None: trunc, BundleSDF's
     # symmetric band). A surface reading only says the space right behind it is inside: with a band deeper than a
-    # wall (mug, 6 mm) or a wedge (prism ridge), the fit fills the cavity/air behind it (docs/tracking.md)
+    # wall (mug, 6 mm) or a wedge (prism ridge), the fit fills the cavity/air behind it (docs/tracking-findings.md)
 
     def __post_init__(self) -> None:
         if self.trunc_back is not None and not 0 < self.trunc_back <= self.trunc:

@@ -11,7 +11,7 @@ Entry point ``run(TrackingInputs, TrackingConfig, *, progress=None) -> TrackingO
    free space (``visible.carved_init``; with ``sdf_support_hull`` the hull also takes the seen points' feet on the
    table, but not under a cavity seen into from above), marching cubes -> visible mesh;
 4. visible set V (``service.tracking.visible``): convex-hull points of the mesh that pass a visibility check.
-See docs/tracking.md.
+See docs/tracking.md (what the stage does now) and docs/tracking-findings.md (the experiments).
 """
 
 from __future__ import annotations
@@ -62,9 +62,8 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
                               f"{cfg.mask_trim_deep_px} px or more inside, look like background")
     rays = sdf_rays(sv, tr.X_WO, frames, tr.model.tree, cfg, rng, carver=tr.carver)
     halfspace = below_table_halfspace(tr.X_WO[0], s.table_height) if cfg.below_table_outside else None
-    ev_frames = pick_frames(tr.tracked, cfg.sdf_band_frames) if cfg.sdf_band_frames else frames
-    if cfg.sdf_drop_contradicted:
-        rays = drop_contradicted(sv, tr.X_WO, ev_frames, rays, cfg)
+    if cfg.sdf_drop_contradicted:  # the SDF's frames test each other's readings
+        rays = drop_contradicted(sv, tr.X_WO, frames, rays, cfg)
     carver = tr.carver if cfg.sdf_carve_init else None
     support = halfspace if cfg.sdf_support_hull else None  # the hull closed down to the table (then carved)
     closure: dict = {}  # what the support closure added, whether it was kept (visible.carved_init)
@@ -102,6 +101,5 @@ def run(inputs: TrackingInputs, cfg: TrackingConfig = TrackingConfig(), *, progr
 
 def _passes_frames(tracked: np.ndarray, cfg: TrackingConfig) -> np.ndarray:
     """The frames the visible-geometry passes of ``run`` read, given which frames are tracked (N,) bool: the SDF's,
-    the contradicted readings' and the visible set's (``pick_frames``)."""
-    band = cfg.sdf_band_frames if cfg.sdf_band_frames else cfg.sdf_frames
-    return np.unique(np.concatenate([pick_frames(tracked, n) for n in (cfg.sdf_frames, band, cfg.visible_frames)]))
+    the contradicted readings' (the SDF's) and the visible set's (``pick_frames``)."""
+    return np.unique(np.concatenate([pick_frames(tracked, n) for n in (cfg.sdf_frames, cfg.visible_frames)]))

@@ -11,7 +11,7 @@ bottle topples (development seeds 521, 531, 571, 850; ground truth read by the d
 axis over the whole topple (about 35 frames, the axis turning 90°) is 0.6-2°, while the tracker adds a false
 spin of 0.5-0.8° per degree of tilt while the bottle starts to tip (about 1° of tilt per frame) and up to
 4°/frame in the fast fall (development 531: −27°, 850: +41° by the landing), which the texture (``spin``: chain,
-graph) follows only partly (531: 19° of the 27°, 850: 26° of 41°; docs/tracking.md "Fall without spin").
+graph) follows only partly (531: 19° of the 27°, 850: 26° of 41°; docs/tracking-findings.md "Fall without spin").
 
 Topple frames (``topple_frames``). With the tracked poses X_WO(i) and the axis a in O, τ(i) = the angle of
 R_WO(i) a from the vertical (0° standing, 90° lying), median-filtered over 5 frames. A frame moves when τ changes by
@@ -25,9 +25,7 @@ No-twist increments. With ψ_i the twist about a of the tracked frame-to-frame r
 the corrected poses X_WO(i) S(θ_i) of ``spin`` have the twist ψ_i + θ_i − θ_{i−1}, which is 0 for
 θ_i = θ_{i−1} − ψ_i. Over a topple's frames the spin correction takes these increments from the frame before it
 (``spin_closure`` with those frames as anchors, as the mixed estimate does with the graph's), the chain continuing
-from them after the landing. With ``entry_fit`` (``spin_fall_entry``) the increments start from the median corrected
-twist of the chain-voted frames before the topple (``spin.entry_spin``: the standing body does not turn either)
-instead of the one entry frame's chain value.
+from them after the landing.
 
 Guard. The increments carry the tracker's other errors (a tilt error of a few degrees turns part of each 10-15°
 fall step into twist: 1-2° over a topple on the development bottles), while the texture, where it follows the fall,
@@ -40,7 +38,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.tracking.spin import LitTest, SpinResult, fast_frames, matched_once, runs, solve_spin_graph, \
+from service.tracking.spin import SpinResult, fast_frames, matched_once, runs, solve_spin_graph, \
     spin_closure, spin_links, spin_mixed, widen
 from service.transforms import mat_to_quat
 
@@ -101,16 +99,14 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
               sep: float = 0.5, profile: str = "off", max_deg: float = 0.0, gate_deg: float = 10.0, n_short: int = 2,
               rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4, fast_rate_deg: float = 2.0,
               fast_dilate: int = 4, fast_votes: int = 60, fall_rate_deg: float = 0.4, fall_min_deg: float = 45.0,
-              fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0, lit: LitTest | None = None, n_view: int = 0,
-              view_upright_deg: float = 90.0, entry_fit: int = 0, axis: tuple | None = None
+              fall_edge_deg: float = 1.0, fall_tol_deg: float = 3.0, axis: tuple | None = None
               ) -> tuple[SpinResult, np.ndarray]:
     """(spin correction, (N,) bool frames that took the no-twist increments) for the poses X_WO (N,4,4) of a body of
     revolution with model Q, N (M,3) in O and interior features ``feats`` (as ``spin_mixed``, whose settings the
     other arguments are): ``spin_mixed``'s estimate, except over the topples (``topple_frames``) where its spin
     change differs from the no-twist change by more than ``fall_tol_deg``: those take the no-twist increments and
-    the other weak fast frames the graph's, as in ``spin_mixed`` (module docstring); ``entry_fit`` ≥ 3: those
-    topples' increments start from the median corrected twist of the last ``entry_fit`` chain-voted frames before
-    them (``spin.entry_spin``; 0: from the entry frame's own value). No topple, or none refused by the guard:
+    the other weak fast frames the graph's, as in ``spin_mixed`` (module docstring). No topple, or none refused by
+    the guard:
     ``spin_mixed``'s result itself. ``axis``: ``find_axis``'s result when already known (as ``spin_mixed``)."""
     n = len(X_WO)
     parts: dict = {}  # spin_mixed's graph solution, reused below (the same links: same poses, axis and settings)
@@ -120,16 +116,14 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
                       graph_votes=graph_votes, smooth=smooth, match=match_once, sep=sep, profile=profile,
                       max_deg=max_deg, gate_deg=gate_deg, n_short=n_short, rate_deg=rate_deg, long_votes=long_votes,
                       fast_span=fast_span, fast_rate_deg=fast_rate_deg, fast_dilate=fast_dilate,
-                      fast_votes=fast_votes, parts=parts, lit=lit, n_view=n_view,
-                      view_upright_deg=view_upright_deg, axis=axis)
+                      fast_votes=fast_votes, parts=parts, axis=axis)
     none = np.zeros(n, bool)
     if not base.is_revolution or base.rejected:
         return base, none
     axis = parts["axis"]  # the axis spin_mixed fitted (the multi-start profile fit is the costly part)
     _, _, a, c = axis
     kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match_once,
-              sep=sep, profile=profile, max_deg=max_deg, axis=axis, lit=lit, n_view=n_view,
-              view_upright_deg=view_upright_deg)
+              sep=sep, profile=profile, max_deg=max_deg, axis=axis)
 
     fall = topple_frames(X_WO, a, rate_deg=fall_rate_deg, min_deg=fall_min_deg, edge_deg=fall_edge_deg)
     if not fall.any():
@@ -159,8 +153,7 @@ def spin_fall(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarra
                                long_votes=long_votes)
             theta_g = solve_spin_graph(n, links) if len(links) else np.zeros(n)
         inc = np.where(weak, np.r_[0.0, np.diff(theta_g)], inc)
-    res = spin_closure(feats, X_WO, Q, N, fast=used | weak, theta_fast=np.cumsum(inc), entry_fit=entry_fit,
-                       entry_level=used, **kw)
+    res = spin_closure(feats, X_WO, Q, N, fast=used | weak, theta_fast=np.cumsum(inc), **kw)
     return res, used
 
 

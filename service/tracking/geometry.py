@@ -8,8 +8,7 @@
   Unknown X_OW; each Gauss–Newton step linearises p' = p + ω × p + t (small motion applied in O) and minimises
       Σ ρ((p' − q)·n)  +  λ_pt Σ ‖p' − q‖²  +  λ_f Σ ‖p'_f − b_f‖²
   (point-to-plane with Huber weights, a small point-to-point term against tangential sliding, and 3-D feature
-  correspondences), with nearest neighbours inside a shrinking radius (optionally only pairs whose normals agree,
-  n_p·n_q > ``normal_cos``); X_OW ← Exp(δ) X_OW.
+  correspondences), with nearest neighbours inside a shrinking radius; X_OW ← Exp(δ) X_OW.
 - Degeneracy (Zhang, Kaess & Singh 2016, "On degeneracy of optimization-based state estimation problems"):
   the point-to-plane normal matrix H = Σ JᵀJ, J = [p × n, n], is made unit-consistent with z = Dδ,
   D = diag(L, L, L, 1, 1, 1) (L = RMS radius of the points: a rotation counts as the arc it moves them),
@@ -197,8 +196,6 @@ def icp(
     feat_W: np.ndarray | None = None,
     feat_O: np.ndarray | None = None,
     w_feat: float = 0.3,
-    N_src: np.ndarray | None = None,
-    normal_cos: float = 0.0,
 ) -> IcpResult:
     """Register points P_W (N,3) to the model (Q_O, N_O) (M,3) with KD-tree ``tree`` over Q_O, from X_WO.
 
@@ -214,9 +211,6 @@ def icp(
         P = P_W @ R.T + t
         d, j = tree.query(P, distance_upper_bound=thr)
         ok = np.isfinite(d)
-        if N_src is not None and normal_cos > 0 and ok.any():
-            # normal compatibility: a point of a face the model lacks is not matched to the edge of another face
-            ok[ok] &= (N_src[ok] @ R.T * N_O[j[ok]]).sum(1) > normal_cos
         if ok.sum() < 6 and nf < 3:
             break
         p, q, n = P[ok], Q_O[j[ok]], N_O[j[ok]]
@@ -278,24 +272,6 @@ def degeneracy(P_O: np.ndarray, N_O: np.ndarray) -> np.ndarray:
     L = float(np.sqrt(np.mean(np.sum((P_O - P_O.mean(0)) ** 2, 1)))) or 1.0
     Di = np.diag([1 / L, 1 / L, 1 / L, 1.0, 1.0, 1.0])
     return np.linalg.eigvalsh(Di @ (J.T @ J) @ Di) / max(len(P_O), 1)
-
-
-def crease_points(P: np.ndarray, N: np.ndarray, radius: float, cos_min: float, k: int = 12) -> np.ndarray:
-    """(N,) bool: points P (N,3) with unit normals N (N,3) that have a neighbour within ``radius`` whose normal
-    differs by more than arccos(cos_min) — points at an edge or crease of the surface, whose normals (central
-    differences over a few pixels) blend the two faces. In a model they form a chamfer along every edge, and a
-    point of a face the model lacks, matched to that chamfer, drags the pose along the directions the model's
-    faces leave free (docs/tracking.md, "Strike sessions")."""
-    from scipy.spatial import cKDTree
-
-    n = len(P)
-    if n < 2 or radius <= 0:
-        return np.zeros(n, bool)
-    d, j = cKDTree(P).query(P, k=min(k, n), distance_upper_bound=radius)
-    ok = np.isfinite(d)
-    jj = np.where(ok, j, 0)
-    c = np.einsum("nkd,nd->nk", N[jj], N)
-    return np.any(ok & (c < cos_min), axis=1)
 
 
 def _pt_H(p: np.ndarray, w: np.ndarray | None = None) -> np.ndarray:

@@ -7,14 +7,14 @@ axis are parallel to the table plane (elevation of a in W: 0). Rolling without s
 contact line on the table, so the constraint holds while the body rolls as well as at rest.
 
 Measured on the lab's bottle topples (development seeds 521, 531, 881; ground truth read by the diagnosis only;
-docs/tracking.md "Lying body levelled"): after the topple the tracked axis of the lying bottle points 1.3-5° above
-or below the horizontal in every frame, the same in the tracking loop, in the keyframes after the bundle adjustment
-and after the final pass: the keyframes after the landing were attached to the standing ones that way (a gauge of
-the keyframes, not an error of single frames). The spin axis found on the final model (``spin.find_axis``) is 3-7°
-off the true one on these models, while the vertical of frame 0 is within 0.1°: the bottle stands on its base at
-frame 0, and the base of a body of revolution is a disc perpendicular to its axis, so a body of revolution at rest
-on the table at frame 0 with its axis within ``stand_deg`` of the vertical has the vertical of W at frame 0 as its
-axis; X_WO(0) has identity rotation, so that is ẑ in O.
+docs/tracking-findings.md "Lying body levelled"): after the topple the tracked axis of the lying bottle points 1.3-5°
+above or below the horizontal in every frame, the same in the tracking loop, in the keyframes after the bundle
+adjustment and after the final pass: the keyframes after the landing were attached to the standing ones that way (a
+gauge of the keyframes, not an error of single frames). The spin axis found on the final model (``spin.find_axis``) is
+3-7° off the true one on these models, while the vertical of frame 0 is within 0.1°: the bottle stands on its base at
+frame 0, and the base of a body of revolution is a disc perpendicular to its axis, so a body of revolution at rest on
+the table at frame 0 with its axis within ``stand_deg`` of the vertical has the vertical of W at frame 0 as its axis;
+X_WO(0) has identity rotation, so that is ẑ in O.
 
 Correction (``level_lying``). With a = ẑ_O, the axis centre c fitted by circles to the model points in height
 bins (``axis_centre``) and the profile's widest straight stretch (``straight_stretch``: bins whose median radius is

@@ -2,8 +2,8 @@
 
 An uploaded mask can be off by a few pixels: on the real cube video the given mask is shifted about 7 px sideways
 from the colour image, so a strip of table inside it back-projects onto the plane of the cube's side face and
-reaches 2-4 cm past the cube's far edge, where no other view can carve it away (docs/tracking.md, "Masks trimmed
-by colour").
+reaches 2-4 cm past the cube's far edge, where no other view can carve it away (docs/tracking-findings.md, "Masks
+trimmed by colour").
 
 Trim: GrabCut (Rother, Kolmogorov, Blake, "GrabCut: interactive foreground extraction using iterated graph cuts",
 SIGGRAPH 2004; ``cv2.grabCut``) on a crop around the mask. Two Gaussian-mixture colour models (5 components each),

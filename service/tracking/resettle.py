@@ -2,12 +2,12 @@
 
 A topple ends with 1–3 frames turning 14–16° each while the occluder may hide most of the object; the tracking
 loop can lose the object there and carry on at a consistent wrong pose (development milk_carton topple 820:
-107 mm / 9° off from the landing to the end). A re-localisation of the settled object against the pre-fall model
-cannot fix it: the pre-fall model holds mostly the object's upper part, the settled view mostly surface never seen
-before (the former ``settle`` option, docs/tracking.md), and the lab's six-tile print gives no ORB match between
-the two views either (no side is seen both before and after the fall in those sessions). What they do share is the
-motion between them: a topple is a rotation about the bottom edge on the table in the direction it started to tip,
-ending when the side face that led lies on the table.
+107 mm / 9° off from the landing to the end). A re-localisation of the settled object against the pre-fall model cannot
+fix it: the pre-fall model holds mostly the object's upper part, the settled view mostly surface never seen before (the
+former ``settle`` option, docs/tracking-findings.md), and the lab's six-tile print gives no ORB match between the two
+views either (no side is seen both before and after the fall in those sessions). What they do share is the motion
+between them: a topple is a rotation about the bottom edge on the table in the direction it started to tip, ending when
+the side face that led lies on the table.
 
 Mechanism (in the tracking loop, ``tracker._resettle_check``):
 1. Detection (``find_fall``): frame i is tracked ``delay`` frames after the last fast step of the loop (a step
@@ -23,7 +23,7 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    then lies on the table; the turn's direction comes from the face, not from the lagging tracked turn.
    Horizontal position corrected by the faces both views show (``face_offsets``: per dominant horizontal
    direction of the model's normals, the plane offset of the model's points and of the frame's points with
-   normals within 20° of it; corrections above ``max_shift`` are left out; optionally the yaw too) and by the
+   normals within 20° of it; corrections above ``max_shift`` are left out; the yaw is not corrected) and by the
    reach of the frame's points along f (``reach_along``: the model's top end must reach at least as far).
 3. When the object has a leading face, the join differs from the tracked pose by more than ``min_deg`` /
    ``min_dist`` and puts no more of the pre-fall model where frame i sees the table or background than the tracked
@@ -35,10 +35,8 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    until the object's base (``base_points``: the table plane under the rest pose, within the model's footprint)
    no longer lies where the settled frames see the table or background (``base_shift``); the lab's cartons land
    6–15 mm beyond the pure turn about the edge, and after the topple the base faces −f, behind the object.
-5. Options, off by default (``resettle_square_deg``): a leading-face normal within a few degrees of perpendicular to the base the object
-   stood on at frame 0 is made perpendicular (a side of a prism standing on its base; the fit's error would stay as
-   the landed object's tilt); a join near the tracked pose is adopted when the tracked pose does not rest on the face
-   the join lays on the table (``rest_offsets``).
+5. (Removed options: the leading face squared to the base, a join near a track that does not rest on the table
+   adopted; docs/tracking-findings.md.)
 6. After the gauge (``tracker._resettle_flush``, ``resettle_flush_deg``): in the settled stretch of every landing
    checked (adopted or not) the face of the pre-fall model lying on the table (``landed_face``, its normal squared to
    the base the object stood on) is laid flush with the table (``flush_pose``: an object at rest on a face has it on
@@ -157,16 +155,12 @@ def face_plane(P: np.ndarray, N: np.ndarray, d: np.ndarray, cos_min: float, min_
 
 
 def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
-                 face_cos: float = np.cos(np.radians(30.0)), base_n_O: np.ndarray | None = None,
-                 square_deg: float = 0.0) -> tuple[np.ndarray, bool]:
+                 face_cos: float = np.cos(np.radians(30.0))) -> tuple[np.ndarray, bool]:
     """Pose (4,4) of the object after tipping about the horizontal unit axis h (3,) from rest pose X_r until its
     leading face lies on the table (see module docstring, step 2). Q_O, N_O (M,3): the pre-fall model.
     With the leading face in the model (``face_plane``), the turn is about the horizontal line where its plane meets
     the table, by the angle that lays its normal n_f on −z (h only picks the face); without it, 90° about h through
     the model's extent along the tipping direction on the table, then lowered onto the table.
-    ``base_n_O`` (3,): the outward normal of the base the object stood on (in O; −z at frame 0); with
-    ``square_deg`` > 0 a face normal within that angle of perpendicular to it is made perpendicular (the side face
-    of a body standing on a flat base, e.g. a carton: a noisy plane fit tilts the landed object by its error).
     Returns (pose, whether the leading face was found)."""
     R_r, t_r = X_r[:3, :3], X_r[:3, 3]
     P = Q_O @ R_r.T + t_r
@@ -177,17 +171,6 @@ def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarra
     plane = face_plane(P, Nw, f, face_cos, 0.03)
     if plane is not None and np.hypot(*plane[0][:2]) > 0.7:
         n_f, d_f = plane
-        if base_n_O is not None and square_deg > 0:
-            b = R_r @ base_n_O
-            b /= np.linalg.norm(b)
-            if abs(n_f @ b) < np.sin(np.radians(square_deg)):
-                n_f = n_f - (n_f @ b) * b
-                n_f /= np.linalg.norm(n_f)
-                sel = Nw @ n_f > face_cos
-                F = P[sel]
-                F = F[np.abs((F - np.median(F, 0)) @ n_f) < 0.01]
-                if len(F) >= 10:
-                    d_f = float(np.median(F @ n_f))
         u = np.array([n_f[0], n_f[1], 0.0])
         u /= np.linalg.norm(u)
         h_f = np.cross(z, u)  # horizontal, normal to n_f: the edge the object turns about
@@ -221,13 +204,14 @@ def reach_along(X: np.ndarray, Q_O: np.ndarray, P_W: np.ndarray, f: np.ndarray, 
 
 
 def face_offsets(X: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, P_W: np.ndarray, N_W: np.ndarray,
-                 cos_face: float = np.cos(np.radians(20.0)), min_pts: int = 30, max_shift: float = 0.03,
-                 max_yaw_deg: float = 15.0) -> np.ndarray:
-    """Pose X (4,4) corrected about the vertical and horizontally by the faces the model (Q_O, N_O (M,3)) and the
-    frame (P_W, N_W (N,3)) both show: the dominant horizontal normal directions of the model placed with X (within
-    20°: a face) are matched to the frame's points with normals within 20°; yaw from the mean angle between matched
-    normals, then per face the difference of plane offsets (median) along its normal; the horizontal translation
-    solves those in least squares. Corrections above ``max_shift`` / ``max_yaw_deg`` are left out."""
+                 cos_face: float = np.cos(np.radians(20.0)), min_pts: int = 30, max_shift: float = 0.03
+                 ) -> np.ndarray:
+    """Pose X (4,4) corrected horizontally by the faces the model (Q_O, N_O (M,3)) and the frame (P_W, N_W (N,3))
+    both show: the dominant horizontal normal directions of the model placed with X (within 20°: a face) are matched
+    to the frame's points with normals within 20°; per face the difference of plane offsets (median) along its
+    normal; the horizontal translation solves those in least squares. Corrections above ``max_shift`` are left out.
+    The turn about the vertical is not corrected (a yaw from the matched normals made two of three development joins
+    worse: docs/tracking-findings.md, "Worst frames of l_block 702 and milk_carton topple 710")."""
     R, t = X[:3, :3], X[:3, 3]
     Qw = Q_O @ R.T + t
     Nw = N_O @ R.T
@@ -250,22 +234,14 @@ def face_offsets(X: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, P_W: np.ndarra
         rest &= ~sel
         selP = N_W @ n > cos_face
         if sel.sum() >= min_pts and selP.sum() >= min_pts:
-            m = N_W[selP].mean(0)
-            m[2] = 0.0
-            m /= np.linalg.norm(m)
-            faces.append((n, m, Qw[sel], P_W[selP]))
+            faces.append((n, Qw[sel], P_W[selP]))
     if not faces:
         return X
-    yaws = [np.arctan2(n[0] * m[1] - n[1] * m[0], n @ m) for n, m, _, _ in faces]
-    yaw = float(np.mean(yaws))
-    if abs(np.degrees(yaw)) > max_yaw_deg:
-        yaw = 0.0
-    c, s = np.cos(yaw), np.sin(yaw)
-    Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    Rz = np.array([[1.0, -0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # no turn about the vertical (a yaw of 0)
     ctr = Qw.mean(0)
     X2 = make_X(Rz @ R, Rz @ (t - ctr) + ctr)
     A, b = [], []
-    for n, _, Qf, Pf in faces:
+    for n, Qf, Pf in faces:
         n2 = Rz @ n
         d_m = float(np.median(((Qf - ctr) @ Rz.T + ctr) @ n2))
         d_f = float(np.median(Pf @ n2))
@@ -371,24 +347,6 @@ def path_offset(X: np.ndarray, poses: list[np.ndarray], m_deg: float) -> float:
     d = [pose_distance(X, P) for P in poses]
     k = int(np.argmin([a for _, a in d]))
     return float(d[k][1] + m_deg * d[k][0])
-
-
-def rest_offsets(X: np.ndarray, X_j: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
-                 cos_min: float = np.cos(np.radians(30.0)), tol: float = 0.005) -> tuple[float, float] | None:
-    """How far the pose X (4,4) is from resting on the face the join X_j (4,4) lays on the table: (angle in degrees
-    between that face's mean normal and −z, median height of its points above the table) at X. The face: the
-    model's points Q_O (M,3) with normals N_O (M,3) within acos(cos_min) of −z and within ``tol`` of the table at
-    X_j (at least 10; else None). A settled object lies on the table: a tracked pose off it by more than the join's
-    own error is not the settled pose."""
-    Nj = N_O @ X_j[:3, :3].T
-    zj = Q_O @ X_j[2, :3] + X_j[2, 3]
-    sel = (Nj[:, 2] < -cos_min) & (np.abs(zj - table_height) < tol)
-    if sel.sum() < 10:
-        return None
-    n = N_O[sel].mean(0) @ X[:3, :3].T
-    n /= np.linalg.norm(n)
-    tilt = float(np.degrees(np.arccos(np.clip(-n[2], -1.0, 1.0))))
-    return tilt, float(np.median(Q_O[sel] @ X[2, :3] + X[2, 3]) - table_height)
 
 
 @dataclass

@@ -40,8 +40,7 @@ Pose graph (``spin_links``, ``solve_spin_graph``): θ from a one-parameter pose 
 during motion (pair measurements across a large view change are biased), long links between similar views; see the
 comment above ``spin_links``. Mixed estimate (``spin_mixed``, the tracker's default): the chain, with the graph's
 increments over fast stretches of the tracked rotation where the chain pooled few votes; see the comment above
-``fast_frames``. A topple's stretch (``fall.spin_fall``) can start from the median corrected twist of the chain's
-voted frames before it instead of one frame's value (``entry_spin``).
+``fast_frames``.
 """
 
 from __future__ import annotations
@@ -125,20 +124,18 @@ def _split_tie(lam: np.ndarray, U: np.ndarray, k: int, rel: float = 1e-12) -> tu
     return lam, U
 
 
-def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, trunc: float = 0.003,
-                 fixed_dir: bool = False) -> tuple[np.ndarray, np.ndarray, float]:
+def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, trunc: float = 0.003
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Axis (a, c) of a body of revolution refitted to the radius profile of its points Q (M,3), starting from
     (a0, c0): minimise the mean of min(e², trunc²) over the points, e = r − ρ(h) with r, h the radius and height
     about the axis and ρ the least-squares polynomial of degree ``deg`` in h (Nelder–Mead over two tilts of a and
     two shifts of c). Uses positions only, so it holds where the normals' eigen-axis mixes two weak rotations
-    (an egg). ``fixed_dir``: a stays a0, only c moves. Returns (a, c, rms of the truncated residual in m)."""
+    (an egg). Returns (a, c, rms of the truncated residual in m)."""
     from scipy.optimize import minimize
 
     e1, e2 = plane_basis(a0)
 
     def unpack(x):
-        if fixed_dir:
-            return a0, c0 + x[0] * e1 + x[1] * e2
         a = a0 + x[0] * e1 + x[1] * e2
         return a / np.linalg.norm(a), c0 + x[2] * e1 + x[3] * e2
 
@@ -151,7 +148,7 @@ def profile_axis(Q: np.ndarray, a0: np.ndarray, c0: np.ndarray, deg: int = 4, tr
         coef, *_ = np.linalg.lstsq(V, r, rcond=None)
         return float(np.mean(np.minimum((r - V @ coef) ** 2, trunc**2)))
 
-    r = minimize(cost, np.zeros(2 if fixed_dir else 4), method="Nelder-Mead", options=dict(xatol=1e-5, fatol=1e-12, maxiter=2000))
+    r = minimize(cost, np.zeros(4), method="Nelder-Mead", options=dict(xatol=1e-5, fatol=1e-12, maxiter=2000))
     a, c = unpack(r.x)
     return a, c, float(np.sqrt(r.fun))
 
@@ -201,8 +198,9 @@ def profile_starts(Q: np.ndarray, N: np.ndarray) -> list[tuple[np.ndarray, np.nd
     of each eigen-direction of the scaled point-to-plane normal matrix (``revolution_axis``) that is mostly a
     rotation, each at its screw's axis point and at the centroid of Q. The profile cost is not convex in the axis:
     an egg's three rotations are all weak and their eigen-axes mix, so the weakest one may lie anywhere, and a refit
-    from it can stop in a local minimum across the body (development egg 1002 with ``track_ransac_thr``: from the
-    weakest eigen-axis 1.92 mm RMS, 79° from the long axis; from the centroid or another eigen-axis 1.23 mm, 9°)."""
+    from it can stop in a local minimum across the body (development egg 1002 with the removed ``track_ransac_thr``:
+    from the weakest eigen-axis 1.92 mm RMS, 79° from the long axis; from the centroid or another eigen-axis 1.23 mm,
+    9°)."""
     _, U, Di, ctr = _screw_eig(Q, N)
     out = []
     for u in U.T:
@@ -253,20 +251,12 @@ def interior_features(gray: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: 
 
 def _cyl(P_O: np.ndarray, a: np.ndarray, c: np.ndarray, e1: np.ndarray, e2: np.ndarray
          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Radius, height and azimuth of points (N,3) about the axis (a, c) with in-plane basis e1, e2 (all in one frame:
-    O for the spin votes, W for ``lit_matches``); m, m, rad in (−π, π] from e1 toward e2."""
+    """Radius, height and azimuth of points (N,3) about the axis (a, c) with in-plane basis e1, e2 (all in one frame,
+    O for the spin votes); m, m, rad in (−π, π] from e1 toward e2."""
     d = P_O - c
     h = d @ a
     x, y = d @ e1, d @ e2
     return np.hypot(x, y), h, np.arctan2(y, x)
-
-
-def _vertical_basis(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """In-plane basis (e1, e2) about the unit axis a (3,) in W, not vertical: e1 the unit vertical (+z_W) direction
-    projected onto the plane, e2 = a × e1; ``_cyl``'s azimuth with it is measured from the vertical."""
-    e1 = np.array([0.0, 0.0, 1.0]) - a[2] * a
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(a, e1)
 
 
 def anchor_candidates(anchors: list[int], n_recent: int, n_spread: int) -> tuple[list[int], list[int]]:
@@ -310,45 +300,6 @@ def spin_votes(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray,
     return np.angle(np.exp(1j * (fp[ok] - fq[ok])))
 
 
-class LitTest(NamedTuple):
-    """Settings of the lit-feature test of ``spin_closure`` (``lit_matches``): the radius (m) the lying body rolls on,
-    the fraction of the rolling turn below which a match is the light's, the least travel (m) of the axis line across
-    itself, the largest angle (°) of the axis from the horizontal, and the share of a frame's votes that must remain
-    for the test's votes to replace them (fewer: the body slid, and its surface features look lit)."""
-    radius: float
-    frac: float
-    min_move: float
-    lie_deg: float
-    keep: float
-
-
-def lit_matches(pW: np.ndarray, qW: np.ndarray, X_i: np.ndarray, X_j: np.ndarray, a: np.ndarray, c: np.ndarray,
-                radius: float, frac: float, min_move: float, lie_deg: float) -> np.ndarray | None:
-    """(K,) bool: the matches p (frame i, W) – q (frame j, W) that did not turn with a lying body of revolution
-    (True: drop the vote), or None when the test does not apply. The light of a scene is fixed in W and the shading of
-    a body of revolution is unchanged by a turn about its axis, so its features (shading edges, highlights) keep
-    their azimuth about the axis line, measured from the vertical, while the surface turns under them. A body lying
-    on a table (axis within ``lie_deg`` of the horizontal in both frames) whose axis line moved across itself by
-    d ≥ ``min_move`` (m) between the frames rolled on its body of radius ``radius`` (m), by d / radius if it did
-    not slip (0.66–1.0 of that on the development bottles); matches whose azimuth changed by less than
-    ``frac`` · d / radius are dropped. Poses X_i, X_j (4,4) with the axis (a, c) in O; only the axis line of each pose
-    enters (a spin about it does not move it)."""
-    ai, aj = X_i[:3, :3] @ a, X_j[:3, :3] @ a
-    s = np.sin(np.radians(lie_deg))
-    if abs(ai[2]) > s or abs(aj[2]) > s or radius <= 0:
-        return None
-    Pi, Pj = X_i[:3, :3] @ c + X_i[:3, 3], X_j[:3, :3] @ c + X_j[:3, 3]
-    dP = Pi - Pj
-    d = float(np.linalg.norm(dP - (dP @ ai) * ai))
-    if d < min_move:
-        return None
-
-    fi = _cyl(pW, ai, Pi, *_vertical_basis(ai))[2]  # azimuths about each frame's axis line, from the vertical
-    fj = _cyl(qW, aj, Pj, *_vertical_basis(aj))[2]
-    turn = np.angle(np.exp(1j * (fi - fj)))
-    return np.abs(turn) < frac * d / radius
-
-
 def vote_mode(theta: np.ndarray, half_width: float) -> tuple[float, int]:
     """(θ, count): the median of the largest set of votes within ±half_width of one another's centre."""
     if len(theta) == 0:
@@ -366,25 +317,14 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
                  *, tau: float, tol: float, inlier_deg: float, min_votes: int, smooth: int, match, sep: float = 0.5,
                  n_recent: int = 3, n_spread: int = 8, max_jump_deg: float = 15.0, profile: str = "off",
                  max_deg: float = 0.0, axis: tuple | None = None, fast: np.ndarray | None = None,
-                 theta_fast: np.ndarray | None = None, lit: LitTest | None = None, n_view: int = 0,
-                 view_upright_deg: float = 90.0, entry_fit: int = 0, entry_level: np.ndarray | None = None
-                 ) -> SpinResult:
+                 theta_fast: np.ndarray | None = None) -> SpinResult:
     """Spin correction θ (N,) of the poses X_WO (N,4,4) of a body of revolution (module docstring) from each
     frame's interior features ``feats[i] = (points (F,3) in W, descriptors (F,32) or None)``
     (``interior_features``); X_WO is not changed (apply with ``apply_spin``). Q (M,3), N (M,3): the final model
     in O. ``match(desc_a, desc_b) -> (M,2)`` pairs descriptors (the tracker's ratio-test matcher). ``axis``: the
     result of ``find_axis`` when already known. ``fast`` (N,) bool with ``theta_fast`` (N,): those frames are not
     voted; each takes the increment of theta_fast since the anchor before its stretch and is an anchor
-    (``spin_mixed``). ``lit``: a frame's votes from the matches ``lit_matches`` finds did not turn with a lying,
-    rolling body are left out when at least ``min_votes`` in the mode and ``lit.keep`` of all its votes remain
-    (else every vote counts: a body that slid, too few features).
-    ``n_view`` > 0: each frame is also voted against that many older anchors (not of fast
-    stretches) whose corrected poses are turned least from its own, predicted with the previous correction
-    (``_nearest_views``; comment below), only while the body is upright: a frame whose axis is more than
-    ``view_upright_deg`` from the vertical of W gets none, and only upright anchors are candidates (``_upright``;
-    90: every frame). ``entry_fit`` ≥ 3 with ``entry_level`` (N,) bool (the fast frames of topples, whose increments
-    keep the body's twist): a fast stretch with such frames starts from the median corrected twist of the last
-    ``entry_fit`` chain-voted frames before it (``entry_spin``) instead of its entry frame's own θ; 0: off."""
+    (``spin_mixed``)."""
     n = len(X_WO)
     is_rev, lam, a, c = axis if axis is not None else find_axis(Q, N, tau, sep, profile)
     theta = np.zeros(n)
@@ -397,18 +337,11 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     half = np.radians(inlier_deg)
     fixed = np.zeros(n, bool)  # frames of fast stretches (spin_mixed)
     entry = None  # the anchor before the current fast stretch
-    upright = _upright(X_WO, a, view_upright_deg) if n_view > 0 else None  # the frames that may take view anchors
-    level = entry_level is not None and entry_fit > 0 and fast is not None and bool((entry_level & fast).any())
-    twist = twist_angles(X_WO, a) if level else None  # the tracked twist, for entry_spin
-    base = 0.0  # the spin the current fast stretch starts from (at its entry frame)
     for i in range(1, n):
         if fast is not None and fast[i]:
             if entry is None:
                 entry = anchors[-1]
-                base = theta[entry]
-                if level and entry_level[i:i + int(np.argmin(np.r_[fast[i:], False]))].any():  # a topple's stretch
-                    base = entry_spin(theta, votes, fixed, twist, entry, entry_fit)
-            theta[i] = base + theta_fast[i] - theta_fast[entry]
+            theta[i] = theta[entry] + theta_fast[i] - theta_fast[entry]
             fixed[i] = True
             Xc[i] = X_WO[i] @ spin_matrix(a, c, theta[i])
             anchors.append(i)
@@ -417,37 +350,20 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
         kp, des = feats[i]
         if des is None or len(kp) < min_votes:
             continue
-        older, cand = anchor_candidates(anchors, n_recent, n_spread)
+        _, cand = anchor_candidates(anchors, n_recent, n_spread)
         prev = anchors[-1]
-        if n_view > 0 and upright[i]:  # older anchors of the nearest views, among the upright ones the texture
-            voted = [j for j in older if not fixed[j] and upright[j]]  # measured (not increments)
-            if voted:
-                cand = sorted(set(cand + _nearest_views(Xc, voted, X_WO[i] @ spin_matrix(a, c, theta[prev]),
-                                                        n_view)))
         win = np.radians(max_jump_deg) * (1 + (i - prev - 1) / 5)  # wider after frames without an estimate
-        th_all, th_lit = [], []  # the votes, and those without the light's features (``lit``)
+        th_all = []
         for j in cand:
             kq, dq = feats[j]
             m = match(des, dq)
             if len(m) == 0:
                 continue
-            pm, qm = kp[m[:, 0]], kq[m[:, 1]]
-            th = spin_votes(pm, qm, X_WO[i], Xc[j], a, c, tol, basis)
-            if lit is not None:  # the features of the light on a rolling body dropped (lit_matches)
-                drop = lit_matches(pm, qm, X_WO[i], Xc[j], a, c, *lit[:4])
-                keep = spin_votes(pm[~drop], qm[~drop], X_WO[i], Xc[j], a, c, tol, basis) if drop is not None else th
-                keep = theta[prev] + np.angle(np.exp(1j * (keep - theta[prev])))
-                th_lit.append(keep[np.abs(keep - theta[prev]) <= win])
+            th = spin_votes(kp[m[:, 0]], kq[m[:, 1]], X_WO[i], Xc[j], a, c, tol, basis)
             th = theta[prev] + np.angle(np.exp(1j * (th - theta[prev])))
             th = th[np.abs(th - theta[prev]) <= win]
             th_all.append(th)
         t, cnt = vote_mode(np.concatenate(th_all) if th_all else np.zeros(0), half)
-        if lit is not None and th_lit:  # kept when they alone reach min_votes (a roll with few features: all)
-            kept = np.concatenate(th_lit)
-            n_all = sum(len(x) for x in th_all)
-            t_l, cnt_l = vote_mode(kept, half)
-            if cnt_l >= min_votes and len(kept) >= lit.keep * n_all:
-                t, cnt = t_l, cnt_l
         if cnt >= min_votes:
             theta[i] = theta[prev] + np.angle(np.exp(1j * (t - theta[prev])))
             votes[i] = cnt
@@ -459,63 +375,6 @@ def spin_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     idx = np.nonzero(ok)[0]
     full = np.interp(np.arange(n), idx, theta[idx])
     return _finish(full, smooth, max_deg, lam, a, c, votes, observable)
-
-
-# The entry of a topple's stretch (``entry_fit``, ``entry_level``; ``spin_fall_entry``). A fast stretch (a topple's
-# no-twist increments, a roll's pose-graph increments) is relative: it carries the spin of the frame it starts from
-# to its end, and the chain after it continues from the stretch's frames, its anchors. That frame's raw chain value
-# jitters by ±2-4° per frame at a topple's onset (28-59 votes per frame on development bottle topple 531), so one
-# frame's error is kept to the end of the session. A body of revolution standing before a topple, and tipping over,
-# does not turn about its axis (``fall``: no force on it has a moment about the axis), so its corrected twist
-# τ_i + θ_i (its rotation about the axis since frame 0, τ the tracked twist, ``twist_angles``) is one constant over
-# the chain-voted frames before the topple and the topple itself. A topple's stretch therefore starts from the median
-# corrected twist of the last ``entry_fit`` chain-voted frames before it, minus the entry frame's tracked twist.
-# (A roll's stretch starts while the body already turns: a median lags it, and a robust line did not do better
-# than the raw value at the roll entries of the development sessions; those keep the raw value.)
-
-def entry_spin(theta: np.ndarray, votes: np.ndarray, fixed: np.ndarray, twist: np.ndarray, entry: int, k: int
-               ) -> float:
-    """The spin correction (rad) a topple's stretch starts from at its entry frame ``entry`` (comment above): the
-    median corrected twist ``twist + theta`` (N,) rad over the last ``k`` frames up to ``entry`` with ``votes`` > 0
-    and after the last ``fixed`` frame (N,) bool (an earlier stretch), minus ``twist[entry]``; ``theta[entry]``
-    itself when there are fewer than 3 such frames (or ``k`` < 3) or the entry frame was not voted."""
-    if k < 3 or votes[entry] <= 0:
-        return float(theta[entry])
-    done = np.nonzero(fixed[:entry + 1])[0]
-    start = int(done[-1]) + 1 if len(done) else 0
-    idx = np.nonzero(votes[start:entry + 1] > 0)[0][-k:] + start
-    if len(idx) < 3:
-        return float(theta[entry])
-    return float(np.median(twist[idx] + theta[idx])) - float(twist[entry])
-
-
-# Anchors from the nearest views (``n_view``, ``spin_view_anchors``). The chain pools its votes against frame 0, the
-# 3 latest corrected frames and up to 8 older ones spread over the session. Through the tilts of a pivot the votes
-# between frames of different views are biased (keypoints that move with the view, depth noise turned into azimuth
-# near the silhouette: −0.8…−1.0° per consecutive pair on development bottle pivots 945, 911, 1060), the 3 latest
-# anchors bring most of the votes (10-45 each, against 0-10 for frame 0 and the spread ones), and the chain carries
-# the drift into the rest after the tilt. A pivot returns to the views it had: the frames at rest before a tilt, the
-# same tilt in an earlier cycle. A keypoint seen from the same view falls on the same pixels with the same depth
-# error, so its vote against an anchor of that view has the same bias at both ends, which cancels. So each frame is
-# also voted against the older anchors whose corrected rotation is nearest to its own (predicted with the previous
-# frame's correction): they tie the frame to an earlier measurement of the same view instead of a chain of views.
-
-def _upright(X_WO: np.ndarray, a: np.ndarray, max_deg: float) -> np.ndarray:
-    """(N,) bool: the frames of X_WO (N,4,4) whose axis a (3,) (unit, in O) is within ``max_deg`` of the vertical of
-    W, either way up (a turn about a does not move the axis, so the corrected poses give the same answer)."""
-    return np.abs(np.einsum("nij,j->ni", X_WO[:, :3, :3], a)[:, 2]) >= np.cos(np.radians(max_deg)) - 1e-12
-
-
-def _nearest_views(Xc: np.ndarray, frames: list[int], X: np.ndarray, k: int) -> list[int]:
-    """The k of ``frames`` (ascending) whose corrected poses Xc[j] (4,4) are turned least from the pose X (4,4)
-    (rotation angle of R_jᵀ R): the anchors that saw the body from the most similar view; of equal angles the
-    latest."""
-    from service.transforms import rotation_angle
-
-    late = frames[::-1]
-    R = Xc[late, :3, :3]
-    ang = rotation_angle(np.einsum("nji,jk->nik", R, X[:3, :3]))
-    return [late[t] for t in np.argsort(ang, kind="stable")[:k]]
 
 
 def _finish(full, smooth, max_deg, lam, a, c, votes, observable) -> SpinResult:
@@ -686,8 +545,7 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
                sep: float = 0.5, profile: str = "off", max_deg: float = 0.0, gate_deg: float = 10.0,
                n_short: int = 2, rate_deg: float = 0.5, long_votes: int = 12, fast_span: int = 4,
                fast_rate_deg: float = 2.0, fast_dilate: int = 4, fast_votes: int = 60,
-               parts: dict | None = None, lit: LitTest | None = None, n_view: int = 0,
-               view_upright_deg: float = 90.0, axis: tuple | None = None) -> SpinResult:
+               parts: dict | None = None, axis: tuple | None = None) -> SpinResult:
     """Spin correction like ``spin_closure`` (same axis, cap, result): the chain, with the fast frames where it pooled
     fewer than ``fast_votes`` votes (``fast_frames``; widened) taking the increments of the pose graph
     (``spin_links``, ``solve_spin_graph``; comment above). ``parts``: a dict that receives the intermediate results
@@ -699,8 +557,7 @@ def spin_mixed(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarr
         parts["axis"] = axis
     match_once = matched_once(match)  # the chain runs twice and the graph asks for many of the same pairs
     kw = dict(tau=tau, tol=tol, inlier_deg=inlier_deg, min_votes=min_votes, smooth=smooth, match=match_once,
-              sep=sep, profile=profile, max_deg=max_deg, axis=axis, lit=lit, n_view=n_view,
-              view_upright_deg=view_upright_deg)
+              sep=sep, profile=profile, max_deg=max_deg, axis=axis)
     fast = fast_frames(X_WO, fast_span, fast_rate_deg, fast_dilate)
     _, _, a, c = axis
     if not axis[0] or not fast[1:].any():

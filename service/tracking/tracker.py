@@ -4,10 +4,8 @@ Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth,
 1. prediction: constant body-frame velocity from the last two tracked poses;
 2. coarse motion: ORB matches inside the mask against the previous tracked frame and the keyframes (their
    3-D points stored in O), RANSAC over 3-point Kabsch hypotheses gives a candidate X_WO (with
-   ``track_ransac_thr``, off, at a tight threshold first: keypoints on the outline stay put while a small body
-   turns under them, ``_feature_motion``; with ``track_ransac_px``, off, first in the camera: pixels across the
-   ray, ransac_thr along it, ``geometry.ray_inliers``; ``track_ransac_kf_px``, off: a wider band for the keyframe
-   matches, whose prediction carries the keyframe pose's error);
+   ``track_ransac_px``, off, first in the camera: pixels across the ray, ransac_thr along it,
+   ``geometry.ray_inliers``, ``_feature_motion``);
 3. refinement: robust point-to-plane ICP of p_W against the object model built so far (keyframe points
    merged in O on a voxel grid), with the RANSAC inliers as point-to-point terms; from every candidate, the
    best fit (inlier fraction, then residual) wins;
@@ -26,16 +24,12 @@ mean over frame 0 and the frames at rest before the robot reaches the object (``
 Topple landings (``resettle``, on): the pre-fall model tipped about its leading bottom edge onto its leading face
 replaces a track far from it a few frames after the landing, the settled frame a keyframe with all its points
 (``service.tracking.resettle``); after the loop the join moves along the tipping direction until the object's base
-is no longer where the settled frames see the table (``resettle_refine_frames``); the leading face is made square to
-the base the object stood on (``resettle_square_deg``, off), a join near a track that does not rest on the table is
-adopted too (``resettle_rest_deg``, off). The fall's frames of an adopted join are registered backwards from the
-settled frame with the turn about the leading bottom edge as one more start and as the judge among fits that are nearly
-as good (``resettle_tip_tol``). After the gauge, the settled stretch of every landing checked is laid
-flush with the table on the face the pre-fall model lands on, the stretch's keyframes moved with it, and its frames
-registered again in the turns about the vertical and horizontal shifts of a resting object (``resettle_flush_deg``, on).
-Strike sessions (options, off by default; docs/tracking.md): keyframe candidates wait while the object slides fast
-on the face it rests on (``kf_still_speed``, ``_defer_keyframe``); edge points, whose normals blend two faces, are
-dropped (``crease_dist``, ``geometry.crease_points``) and ICP pairs need compatible normals (``icp_normal_cos``).
+is no longer where the settled frames see the table (``resettle_refine_frames``). The fall's frames of an adopted
+join are registered backwards from the settled frame with the turn about the leading bottom edge as one more start
+and as the judge among fits that are nearly as good (``resettle_tip_tol``). After the gauge, the settled stretch of
+every landing checked is laid flush with the table on the face the pre-fall model lands on, the stretch's keyframes
+moved with it, and its frames registered again in the turns about the vertical and horizontal shifts of a resting
+object (``resettle_flush_deg``, on).
 Frames never tracked keep tracked=False and get poses interpolated (slerp/lerp) between tracked neighbours.
 O: origin at the centroid of frame 0's object points in W, axes parallel to W (docs/conventions.md).
 """
@@ -48,7 +42,7 @@ from typing import TYPE_CHECKING, Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from service.tracking.geometry import (IcpResult, backproject, crease_points, depth_continuous, icp,
+from service.tracking.geometry import (IcpResult, backproject, depth_continuous, icp,
                                        pixel_normals, ransac_rigid)
 from service.tracking.types import TrackingConfig
 from service.tracking.voxels import group_sums, voxel_groups
@@ -149,8 +143,6 @@ def observe(session, i: int, cfg: TrackingConfig, rng: np.random.Generator) -> F
     N_W = N_C @ R.T
     # the table next to the object's base has continuous depth and leaks in with the mask boundary
     above = (P_W[:, 2] > session.table_height + cfg.table_clearance) & ~near_effector(session, i, P_W, cfg)
-    if cfg.crease_dist > 0:  # edge points: their normals blend two faces (geometry.crease_points)
-        above &= ~crease_points(P_W, N_W, cfg.crease_dist, cfg.crease_cos)
     P_W, N_W = P_W[above], N_W[above]
     kp_W = np.zeros((0, 3))
     desc = None
@@ -216,33 +208,6 @@ def _jump(X_a: np.ndarray, X_b: np.ndarray, dt: float, cfg: TrackingConfig) -> b
     dist, ang = pose_distance(X_a, X_b)
     dt = max(float(dt), 1e-6)
     return dist / dt > cfg.max_speed or ang / dt > cfg.max_rate_deg
-
-
-def _defer_keyframe(X_a: np.ndarray, X_i: np.ndarray, X_kf: np.ndarray, dt: float, far: bool, new_surface: bool,
-                    n_deferred: int, cfg: TrackingConfig) -> bool:
-    """True when frame i, a keyframe candidate (``far`` from every keyframe and/or showing ``new_surface``), should
-    wait (``kf_still_speed`` set): the object moves faster than kf_still_speed (m/s) or kf_still_rate_deg (°/s)
-    from the last tracked pose X_a, dt seconds before, AND it slides on the face it rests on — its vertical axis
-    within kf_still_tilt_deg of the last keyframe's X_kf (None: any motion) — AND fewer than kf_still_max_frames
-    frames in a row have waited. A pose tracked during an impulsive slide lags (ICP from the constant-velocity
-    prediction stops 5–10° short) and a keyframe taken there puts that lag into the model, where it stays along the
-    directions the overlaps do not fix (sliding along a box face); the frame at rest after the slide is far from
-    every keyframe and is taken instead. A tipping object (topple) shows new faces during the turn and keeps its
-    keyframes; new-surface keyframes wait too unless kf_still_new is False."""
-    if cfg.kf_still_speed is None or n_deferred >= cfg.kf_still_max_frames:
-        return False
-    if new_surface and not far and not cfg.kf_still_new:
-        return False
-    dt = max(float(dt), 1e-6)
-    step_m, step_deg = pose_distance(X_a, X_i)
-    if step_m / dt <= cfg.kf_still_speed and step_deg / dt <= cfg.kf_still_rate_deg:
-        return False  # nearly still: no lag
-    if cfg.kf_still_tilt_deg is not None:
-        z = np.array([0.0, 0.0, 1.0])
-        c = float(np.clip((X_i[:3, :3].T @ z) @ (X_kf[:3, :3].T @ z), -1.0, 1.0))
-        if np.degrees(np.arccos(c)) > cfg.kf_still_tilt_deg:
-            return False  # tipping: new faces come into view, keyframes are needed during the turn
-    return True
 
 
 def near_effector(session, i: int, P_W: np.ndarray, cfg: TrackingConfig) -> np.ndarray:
@@ -354,9 +319,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     n_feat = np.zeros((N, 2), int)
 
     X_CW = X_inv(session.X_WC)
-    icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist,
-                  normal_cos=cfg.icp_normal_cos)
-    n_defer = 0  # consecutive frames whose keyframe was deferred (kf_still_speed)
+    icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist)
     landings: list = []  # resettle.Landing of every topple landing checked (cfg.resettle)
     for i in range(1, N):
         o = observe(session, i, cfg, rng)
@@ -371,10 +334,10 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             b = last[-2]
             cands.insert(0, X[a] @ (X_inv(X[b]) @ X[a]))  # X_WO(a) · (body-frame step b→a)
         # features: previous tracked frame and keyframes
-        fW, fO, from_kf = _feature_corr(o, obs[a], X[a], keyframes, lost=(a != i - 1), sources=True)
+        fW, fO = _feature_corr(o, obs[a], X[a], keyframes, lost=(a != i - 1))
         feat_W = feat_O = None
         if len(fW) >= max(6, cfg.feat_min_inliers):
-            Xr, inl = _feature_motion(fW, fO, cfg, rng, cam=(session.K, X_CW), from_kf=from_kf)
+            Xr, inl = _feature_motion(fW, fO, cfg, rng, cam=(session.K, X_CW))
             if Xr is not None:
                 Xc = X_inv(Xr)  # fO = Xr fW -> Xr = X_OW
                 cands.append(Xc)
@@ -386,13 +349,13 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
                 dt, da = pose_distance(best.X_WO, Xc)
                 if dt < 0.01 and da < 5.0:
                     continue  # this start converges to the pose already found
-            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw)
+            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, **icp_kw)
             if _better(r, best):
                 best = r
         if a != i - 1 and not _good(best, cfg):
             # re-localisation: wider search from the last tracked pose and every keyframe pose
             for kf in keyframes[::-1][:8]:
-                r = icp(o.P_W, kf.X_WO, model.tree, model.Q, model.N, N_src=o.N_W,
+                r = icp(o.P_W, kf.X_WO, model.tree, model.Q, model.N,
                         **{**icp_kw, "dist0": 2 * cfg.icp_dist0})
                 if _better(r, best):
                     best = r
@@ -413,12 +376,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         dists = [pose_distance(kf.X_WO, X[i]) for kf in keyframes]
         far = min(max(d / cfg.kf_dist, ang / cfg.kf_angle_deg) for d, ang in dists) >= 1.0
         new_frac = float(np.mean(best.nn_dist > cfg.inlier_dist))
-        still = True
-        if cfg.kf_still_speed is not None and (far or new_frac > cfg.kf_new_frac):
-            still = not _defer_keyframe(X[a], X[i], keyframes[-1].X_WO, session.frame_times[i] - session.frame_times[a],
-                                        far, new_frac > cfg.kf_new_frac, n_defer, cfg)
-            n_defer = 0 if still else n_defer + 1
-        if still and best.inlier_frac >= cfg.kf_min_inlier_frac and (far or new_frac > cfg.kf_new_frac):
+        if best.inlier_frac >= cfg.kf_min_inlier_frac and (far or new_frac > cfg.kf_new_frac):
             near = best.nn_dist < cfg.grow_dist
             X_OW = X_inv(X[i])
             consistent = True
@@ -460,7 +418,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             for k in range(1, len(keyframes)):
                 others = _model_from([kf for j, kf in enumerate(keyframes) if j != k], cfg.model_voxel)
                 kf = keyframes[k]
-                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, N_src=kf.N_W, **{**icp_kw, "dist0": 0.015})
+                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, **{**icp_kw, "dist0": 0.015})
                 if _good(r, cfg):
                     _place_keyframe(kf, r.X_WO, carver)
             model = _model_from(keyframes, cfg.model_voxel)
@@ -470,7 +428,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             if len(o.P_W) < cfg.min_points:
                 continue
             start = X[i]
-            r = icp(o.P_W, start, model.tree, model.Q, model.N, N_src=o.N_W,
+            r = icp(o.P_W, start, model.tree, model.Q, model.N,
                     **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
             X[i], frac[i], rmse[i] = r.X_WO, r.inlier_frac, r.rmse
             tracked[i] = _good(r, cfg)
@@ -492,8 +450,6 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             tilt = _spin_tilt(obs, X, model, spin, cfg)
         if cfg.lie_level:  # a lying body of revolution: axis parallel to the table (service.tracking.lying)
             _level_lying(X, model, spin, session.table_height, cfg)
-        if cfg.spin_rounds > 0:  # egg-like bodies: the closures again on a model rebuilt from the corrected poses
-            spin, tilt, model = _spin_rounds(obs, X, model, keyframes, carver, spin, tilt, session.table_height, cfg)
     X = interpolate_untracked(X, tracked)
     return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings, tilt)
 
@@ -519,7 +475,7 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     ``carver`` changed in place), X[i] takes it and frame i becomes a keyframe with all its points; returns (the ICP
     result at the new pose, the new model), else None. Every fall checked is appended to ``landings``."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import Landing, face_offsets, find_fall, landing_pose, reach_along, rest_offsets
+    from service.tracking.resettle import Landing, face_offsets, find_fall, landing_pose, reach_along
 
     ev = find_fall(X, tracked, i, cfg.settle_fast_deg, cfg.settle_fall_deg, cfg.resettle_tip_deg,
                    cfg.resettle_min_tip_deg, cfg.resettle_delay, after=max([ld.i for ld in landings], default=0))
@@ -530,10 +486,8 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     if not pre:
         return None
     M = _model_from(pre, cfg.model_voxel)
-    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height, base_n_O=X[0][:3, :3].T @ [0.0, 0.0, -1.0],
-                            square_deg=cfg.resettle_square_deg)
-    Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift,
-                      max_yaw_deg=cfg.resettle_max_yaw_deg)
+    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height)
+    Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift)
     Xj = reach_along(Xj, M.Q, o.P_W, np.cross(h, [0.0, 0.0, 1.0]), cfg.resettle_max_shift)
     dt, da = pose_distance(X[i], Xj)
     view = FreeSpace(session.K, session.X_WC, cfg.carve_margin, cfg.carve_px)
@@ -548,9 +502,6 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     # frame's free space as the tracked one (the pre-fall model placed with it covers no more pixels where the frame
     # sees the table or background); a wrong track need not be shown wrong by that test (its model fits the upper part)
     far = dt > cfg.resettle_min_dist or da > cfg.resettle_min_deg
-    if not far and face and cfg.resettle_rest_deg > 0:  # a tracked pose near the join but not resting on the table
-        off = rest_offsets(X[i], Xj, M.Q, M.N, session.table_height)
-        far = off is not None and (off[0] > cfg.resettle_rest_deg or abs(off[1]) > cfg.resettle_rest_dist)
     adopt = far and face and s_new <= s_old + cfg.resettle_seen
     landings.append(Landing(g0, i, X[i].copy(), Xj.copy(), s_old, s_new, bool(adopt)))
     if not adopt:
@@ -776,7 +727,7 @@ def _settle_backward(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nd
                     starts.append(poses[k])
             best, best_ok, fits = None, False, []
             for Xs in starts:
-                r = icp(o.P_W, Xs, model.tree, model.Q, model.N, N_src=o.N_W, **{**icp_kw, "dist0": 0.02})
+                r = icp(o.P_W, Xs, model.tree, model.Q, model.N, **{**icp_kw, "dist0": 0.02})
                 ok = _good(r, cfg) and consistent(r.X_WO)
                 fits.append((r, ok))
                 if best is None or (ok and not best_ok) or (ok == best_ok and _better(r, best)):
@@ -831,18 +782,6 @@ def _spin_tau(model: ObjectModel, cfg: TrackingConfig) -> float:
     return cfg.spin_tau
 
 
-def _body_radius(model: ObjectModel, cfg: TrackingConfig) -> float:
-    """The radius (m) a lying body of revolution rolls on: the 90th percentile of the model points' distances from
-    the spin axis (``spin.find_axis`` with the tracker's settings; 0 when the model is not a body of revolution)."""
-    from service.tracking.spin import find_axis
-
-    is_rev, _, a, c = find_axis(model.Q, model.N, _spin_tau(model, cfg), cfg.spin_sep, cfg.spin_profile)
-    if not is_rev:
-        return 0.0
-    d = model.Q - c
-    return float(np.percentile(np.linalg.norm(d - np.outer(d @ a, a), axis=1), 90))
-
-
 def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig) -> "SpinResult":
     """Re-estimate the spin about the symmetry axis of a body of revolution (``service.tracking.spin``) and apply
     it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture."""
@@ -857,16 +796,9 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
     feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
     common = dict(tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
                   smooth=1 if cfg.spin_twist_smooth > 1 else cfg.spin_smooth,  # twist filtered instead (below)
-                  match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg,
-                  n_view=cfg.spin_view_anchors, view_upright_deg=cfg.spin_view_upright_deg)
+                  match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)
     common["tau"] = tau
-    # the axis' direction from the final model, or from data the loop's swing did not smear (spin_axis_from)
-    common["axis"] = axis if cfg.spin_axis_from == "model" else _closure_axis(obs, X, model, cfg, axis)
-    if cfg.spin_lit_frac > 0:  # the light's features on a rolling body dropped from the votes (spin.lit_matches)
-        from service.tracking.spin import LitTest
-
-        common["lit"] = LitTest(_body_radius(model, cfg), cfg.spin_lit_frac, cfg.spin_lit_move, cfg.spin_lit_lie_deg,
-                                cfg.spin_lit_keep)
+    common["axis"] = axis
     graph = dict(gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
                  long_votes=cfg.spin_graph_long_votes)
     if cfg.spin_fall and cfg.spin_solver == "mixed":  # the mixed estimate, no spin in topples
@@ -887,45 +819,6 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
         res = _spin_pivot(res, X, cfg)
     X[:] = apply_spin(X, res)
     return res
-
-
-def _closure_axis(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, axis: tuple
-                  ) -> tuple:
-    """``spin.find_axis``'s result ``axis`` = (is_revolution, λ̂, a, c) on the final model, its axis (a, c) in O
-    replaced by the one ``cfg.spin_axis_from`` names when the model is a body of revolution (docs/tracking.md)."""
-    if not axis[0]:
-        return axis
-    ac = _AXIS_FROM[cfg.spin_axis_from](obs, X, model, cfg, axis[2], axis[3])
-    return axis if ac is None else (axis[0], axis[1], ac[0], ac[1])
-
-
-def _axis_still(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, a0: np.ndarray,
-                c0: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-    """The axis (a, c) in O of the frames before the body first moves (``spinaxis.still_axis``); None without them."""
-    from service.tracking.spinaxis import still_axis, still_frames
-
-    parts = []
-    R = X[0, :3, :3]  # the body at rest: frame 0's pose (O) for every still frame
-    for i in still_frames(X):
-        if len(obs[i].P_W) >= cfg.min_points:
-            parts.append(((obs[i].P_W - X[0, :3, 3]) @ R, obs[i].N_W @ R))
-    if not parts:
-        return None
-    still = ObjectModel.build(cfg.model_voxel, parts)
-    a, c, _ = still_axis(still.Q, still.N, a0, c0)
-    return a, c
-
-
-def _axis_lying(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, a0: np.ndarray,
-                c0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The axis in O horizontal in the lying frames (``spinaxis.lying_axis``), its point fitted to the model."""
-    from service.tracking.spinaxis import lying_axis, profile_point
-
-    a, _ = lying_axis(X, a0)
-    return a, profile_point(model.Q, a, c0)
-
-
-_AXIS_FROM = {"still": _axis_still, "lying": _axis_lying}
 
 
 def _flat_faced(model: ObjectModel, cfg: TrackingConfig, axis: tuple, n: int) -> "SpinResult | None":
@@ -997,44 +890,6 @@ def _spin_tilt(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, spin: "Sp
     return res
 
 
-def _spin_rounds(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe],
-                 carver: "FreeSpace | None", spin: "SpinResult", tilt: "TiltResult | None", table_z: float,
-                 cfg: TrackingConfig) -> tuple["SpinResult", "TiltResult | None", ObjectModel]:
-    """Up to ``spin_rounds`` more rounds of the closures of an egg-like body (the conditions of ``_spin_tilt`` on the
-    spin: a body of revolution whose axis came from the radius profile, its correction applied and observable). A
-    round places every keyframe at its frame's corrected pose X_WO (in W; O unchanged), rebuilds the model from their
-    points and runs the spin closure, then the tilt closure and the levelling, from the corrected poses X (N,4,4):
-    the model the first closures measured on was built from keyframes attached with the tracking loop's rotations,
-    and its axis is off by what those were off. The round is kept (X in place, the model and results returned)
-    only when its spin correction stays within ``spin_rounds_max_deg`` in every frame: the texture then agrees with
-    the corrected poses and the round refines them; a larger correction is a new estimate on another axis, and the
-    round (with the keyframes' poses and the carver) is undone and the rounds stop."""
-    from service.tracking.spin import revolution_axis
-
-    if spin is None or not spin.is_revolution or spin.rejected or not spin.observable:
-        return spin, tilt, model
-    if revolution_axis(model.Q, model.N, _spin_tau(model, cfg), cfg.spin_sep)[0]:  # one clearly weakest rotation
-        return spin, tilt, model
-    for _ in range(cfg.spin_rounds):
-        before = [kf.X_WO for kf in keyframes]
-        for kf in keyframes:
-            _place_keyframe(kf, X[kf.index].copy(), carver)
-        m2 = _model_from(keyframes, cfg.model_voxel)
-        X2 = X.copy()
-        s2 = _spin_closure(obs, X2, m2, cfg)
-        if (not s2.is_revolution or s2.rejected or not s2.observable
-                or np.max(np.abs(s2.theta)) > np.radians(cfg.spin_rounds_max_deg)):
-            for kf, Xk in zip(keyframes, before):
-                _place_keyframe(kf, Xk, carver)
-            break
-        t2 = _spin_tilt(obs, X2, m2, s2, cfg) if cfg.spin_tilt else None
-        if cfg.lie_level:
-            _level_lying(X2, m2, s2, table_z, cfg)
-        X[:] = X2
-        spin, tilt, model = s2, t2 if t2 is not None else tilt, m2
-    return spin, tilt, model
-
-
 def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConfig, common: dict, graph: dict):
     """``fall.spin_fall`` with the tracker's settings: the mixed spin estimate, with no spin about the axis over the
     topples where the texture lagged (service/tracking/fall.py)."""
@@ -1044,8 +899,7 @@ def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConf
                        fast_span=cfg.spin_mixed_span, fast_rate_deg=cfg.spin_mixed_rate_deg,
                        fast_dilate=cfg.spin_mixed_dilate, fast_votes=cfg.spin_mixed_votes,
                        fall_rate_deg=cfg.spin_fall_rate_deg, fall_min_deg=cfg.spin_fall_min_deg,
-                       fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg,
-                       entry_fit=cfg.spin_fall_entry, **common, **graph)
+                       fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg, **common, **graph)
     return res
 
 
@@ -1062,7 +916,7 @@ def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Ke
     object (``service.tracking.gauge``)."""
     if len(o0.P_W) < cfg.min_points:
         return model
-    r = icp(o0.P_W, X[0], model.tree, model.Q, model.N, N_src=o0.N_W,
+    r = icp(o0.P_W, X[0], model.tree, model.Q, model.N,
             **{**icp_kw, "dist0": 0.012, "iters": cfg.final_iters})
     X0_hat = r.X_WO if _good(r, cfg) else None
     if cfg.gauge_frames > 0 and obs is not None and tracked is not None and session is not None:
@@ -1118,18 +972,16 @@ def _model_from(keyframes: list[Keyframe], voxel: float) -> ObjectModel:
     return ObjectModel.build(voxel, parts)
 
 
-def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: list[Keyframe], lost: bool,
-                  sources: bool = False) -> tuple[np.ndarray, ...]:
+def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: list[Keyframe],
+                  lost: bool) -> tuple[np.ndarray, np.ndarray]:
     """3-D correspondences (current point in W, same point in O) from ORB matches: to the previous tracked frame
-    (placed in O with its pose X_prev) first, then to the keyframes (placed with theirs). With ``sources`` also
-    (N,) bool: the match is to a keyframe."""
+    (placed in O with its pose X_prev) first, then to the keyframes (placed with theirs)."""
     A, B = [], []
     if o.desc is None:
-        return (np.zeros((0, 3)), np.zeros((0, 3))) + ((np.zeros(0, bool),) if sources else ())
+        return np.zeros((0, 3)), np.zeros((0, 3))
     X_OW = X_inv(X_prev)
     prev_O = prev.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3]
     m = _match(o.desc, prev.desc)
-    n_prev = len(m)
     if len(m):
         A.append(o.kp_W[m[:, 0]])
         B.append(prev_O[m[:, 1]])
@@ -1140,33 +992,22 @@ def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: li
             A.append(o.kp_W[m[:, 0]])
             B.append(kf.kp_O[m[:, 1]])
     if not A:
-        return (np.zeros((0, 3)), np.zeros((0, 3))) + ((np.zeros(0, bool),) if sources else ())
-    A, B = np.concatenate(A), np.concatenate(B)
-    return (A, B) + ((np.arange(len(A)) >= n_prev,) if sources else ())
+        return np.zeros((0, 3)), np.zeros((0, 3))
+    return np.concatenate(A), np.concatenate(B)
 
 
 def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np.random.Generator,
-                    cam: tuple[np.ndarray, np.ndarray] | None = None, from_kf: np.ndarray | None = None
-                    ) -> tuple[np.ndarray | None, np.ndarray]:
+                    cam: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray | None, np.ndarray]:
     """RANSAC rigid fit (X_OW, inlier mask) of the tracking loop's ORB correspondences fW (current point, W) ↔ fO
     (same point, O): with ``track_ransac_px`` set and ``cam`` = (K (3,3), X_CW (4,4)) given, first in the camera
-    (within track_ransac_px pixels across the ray, ransac_thr along it: ``geometry.ray_inliers``); then at
-    ``track_ransac_thr`` when set; at ``ransac_thr`` when those find fewer than ``feat_min_inliers`` (or are off).
-    A keypoint whose patch lies on the silhouette or an occluder's edge stays put in the image while a small body
-    turns under it; within the wide threshold of a surface that moved less than it (a 3 cm egg turning 5°/frame:
-    2.6 mm) it joins the consensus and pulls the fit toward no motion. With ``track_ransac_kf_px`` and ``from_kf``
-    (N,) bool (the match is to a keyframe) given, the keyframe matches' band across the ray is that instead: their
-    prediction carries the keyframe pose's error relative to the previous frame's besides the keypoint's noise."""
+    (within track_ransac_px pixels across the ray, ransac_thr along it: ``geometry.ray_inliers``); at ``ransac_thr``
+    when that finds fewer than ``feat_min_inliers`` (or is off). A keypoint whose patch lies on the silhouette or an
+    occluder's edge stays put in the image while a small body turns under it; within the 1 cm ball of a surface that
+    moved less than it (a 3 cm egg turning 5°/frame: 2.6 mm) it joins the consensus and pulls the fit toward no
+    motion; across the ray it is several pixels from where the surface's motion predicts it."""
     if cfg.track_ransac_px is not None and cam is not None:
-        px = cfg.track_ransac_px
-        if cfg.track_ransac_kf_px is not None and from_kf is not None:
-            px = np.where(from_kf, float(cfg.track_ransac_kf_px), float(cfg.track_ransac_px))
         Xr, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers,
-                               cam=(cam[0], cam[1], px))
-        if Xr is not None:
-            return Xr, inl
-    if cfg.track_ransac_thr is not None:
-        Xr, inl = ransac_rigid(fW, fO, cfg.track_ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
+                               cam=(cam[0], cam[1], cfg.track_ransac_px))
         if Xr is not None:
             return Xr, inl
     return ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)

@@ -42,7 +42,7 @@ class TrackingOutputs:
 def _visible_sdf() -> SdfConfig:
     # the visible SDF weighs space seen empty 300 (BundleSDF: 1): vertices the band of other readings and the hull
     # start left in space the frames had seen empty carried 36-50 % of the error of the prism and the mug
-    # (docs/tracking.md, "free space seen by other frames as evidence"); the fusion stage has its own SdfConfig
+    # (docs/tracking-findings.md, "free space seen by other frames as evidence"); the fusion stage has its own SdfConfig
     return SdfConfig(w_empty=300.0)
 
 
@@ -78,27 +78,14 @@ class TrackingConfig:
     ransac_thr: float = 0.01
     feat_min_inliers: int = 12  # fewer RANSAC inliers among the ORB matches: no feature candidate or terms (6 matches
     # of a repeated texture gave a consistent wrong pose, 56° off, on a still box: strike session 511)
-    # tracking loop, ORB matches (tracker._feature_motion): RANSAC first at track_ransac_thr (m; None: off, ransac_thr
-    # only), ransac_thr when that finds fewer than feat_min_inliers. A static keypoint on the silhouette or an
-    # occluder's edge (its patch follows the outline, not the surface) stays within 1 cm of where a turning small body
-    # moves it (development eggs: the surface moves 3.4-5.4 mm/frame), so the 1 cm consensus keeps it and the fit lags.
-    # Off: 0.004 gained on 3 of 4 development eggs (27-37 -> 18-27 deg median) and lost on the evaluation egg 707
-    # (6.91 -> 9.68 deg), 704 and 709 (docs/tracking.md, "The loop's lag in a fast roll")
-    track_ransac_thr: float | None = None
     # tracking loop, ORB matches: the consensus measured in the camera (geometry.ray_inliers): a match is an inlier when
     # its keypoint lies within track_ransac_px pixels of the prediction across the ray and ransac_thr along it (the depth
-    # reading); None: off (the isotropic ransac_thr ball). First, before track_ransac_thr / ransac_thr, which take over
-    # when it finds fewer than feat_min_inliers. Development eggs: of the 1 cm consensus's inliers in a roll 38 % do not
+    # reading); None: off (the isotropic ransac_thr ball). First, before ransac_thr, which takes over when it finds
+    # fewer than feat_min_inliers. Development eggs: of the 1 cm consensus's inliers in a roll 38 % do not
     # follow the surface (keypoints 2-8 px from where it moved them, within 1 cm: 7.7 px at 0.8 m across the ray).
     # Off: 2 px gained on 18 of 22 development eggs and on 704, 710, 711, and lost on the evaluation 703 and 707
-    # (docs/tracking.md, "Eggs: why the loop's increment in a roll is short")
+    # (docs/tracking-findings.md, "Eggs: why the loop's increment in a roll is short")
     track_ransac_px: float | None = None
-    # with track_ransac_px: the band across the ray (pixels) for the matches to keyframes; None: track_ransac_px for
-    # every match. A keyframe match predicts the keypoint from the keyframe's pose, whose error relative to the
-    # previous frame's (the chain's drift since the keyframe, 1-3 mm) adds to the keypoint's own noise; at 2 px the
-    # consensus keeps the previous frame's matches and drops a third of the right keyframe matches, so a push's lag is
-    # no longer pulled back to the keyframes (docs/tracking.md, "Where else the camera consensus loses"). Off.
-    track_ransac_kf_px: float | None = None
     min_inlier_frac: float = 0.35  # below: lost track
     max_rmse: float = 0.006  # above: lost track
     max_speed: float = 1.5  # a pose farther than this (m/s) or
@@ -113,12 +100,6 @@ class TrackingConfig:
     kf_min_new_add: float = 0.02  # ... and at least this fraction are off-model points it adds (within grow_dist,
     # not seen through); without it, points that are never added keep the trigger on in every frame
     kf_min_inlier_frac: float = 0.5
-    # if kf_still_speed is set (m/s; 0.1 tried, off), a keyframe candidate waits while the object moves faster than
-    # it or kf_still_rate_deg (°/s) and slides on its face (kf_still_tilt_deg below; tracker._defer_keyframe): poses
-    # tracked during an impulsive motion lag (strike session 511: 5–10°) and poison the model. Without the tilt
-    # condition it broke topple 703 (2.03° -> 8.8°); with it 2.39° (docs/tracking.md, "Strike sessions")
-    kf_still_speed: float | None = None
-    kf_still_rate_deg: float = 60.0
     grow_dist: float = 0.015  # points farther than this from the model are not added (mask noise)
     refine_rounds: int = 2  # leave-one-out keyframe refinement rounds after the bundle adjustment (0: off)
     ba_iters: int = 10  # keyframe bundle adjustment (service.tracking.posegraph) iterations (0: off)
@@ -141,7 +122,7 @@ class TrackingConfig:
     # of the mask's interior (visible.blended_pixels: a sensor's blend of object and background), get a band of
     # sdf_silhouette_back (m) behind their reading instead of the fit's τ, or with sdf_silhouette_drop no ray at all.
     # Off: on the real cube video the blended readings make its long extent, but every variant loses on the
-    # synthetic development sessions (docs/tracking.md, "The real cube's long extent")
+    # synthetic development sessions (docs/tracking-findings.md, "The real cube's long extent")
     sdf_silhouette_px: int = 0
     sdf_silhouette_back: float = 0.0
     sdf_silhouette_margin: float | None = None
@@ -153,7 +134,7 @@ class TrackingConfig:
     # geometry cannot see, re-estimated per frame from ORB keypoints well inside the mask matched against frame 0
     # and earlier corrected frames; only when the final model's weakest direction is a rotation (λ̂ < spin_tau).
     # On: bottle topple 704 20.5° -> 6.0° median rotation error, egg 707 10.4° -> 6.8°, bottle pivot 711 1.77° ->
-    # 1.47°, mug 708 1.21° -> 0.74°; other sessions and the real cube identical (docs/tracking.md)
+    # 1.47°, mug 708 1.21° -> 0.74°; other sessions and the real cube identical (docs/tracking-findings.md)
     spin_closure: bool = True
     spin_tau: float = 0.03  # λ̂ below which the model counts as a body of revolution (1/3: fully constrained)
     spin_sep: float = 0.5  # ... and at most this times the next eigenvalue (one weak direction, not a near-sphere)
@@ -163,35 +144,23 @@ class TrackingConfig:
     spin_inlier_deg: float = 3.0  # half width of the vote window
     spin_min_votes: int = 8  # fewer votes: the frame's spin is interpolated from its neighbours
     spin_smooth: int = 5  # median filter (frames) of the spin correction
-    # keyframe deferral (kf_still_speed set): only while the object slides on the face it rests on (vertical axis
-    # within this many degrees of the last keyframe's; None: any motion), at most kf_still_max_frames frames in a
-    # row, and new-surface keyframes wait too unless kf_still_new is False (tracker._defer_keyframe)
-    kf_still_tilt_deg: float | None = 5.0
-    kf_still_max_frames: int = 15
-    kf_still_new: bool = True
-    # edges: points with a neighbour within crease_dist whose normal differs by more than arccos(crease_cos) are
-    # dropped from every frame (their normals blend two faces: a chamfer in the model that drags a newly seen face
-    # into it; geometry.crease_points; 0: off), and ICP pairs whose normals differ by more than
-    # arccos(icp_normal_cos) are not matched (0: off)
-    crease_dist: float = 0.0
-    crease_cos: float = 0.85
-    icp_normal_cos: float = 0.0
     # the SDF starts from the hull of the observed points with the voxels a keyframe saw through set outside
-    # (visible.carved_init; the mug's mouth and cavity: 708 4.73 -> 3.99 mm, the others unchanged, docs/tracking.md)
+    # (visible.carved_init; the mug's mouth and cavity: 708 4.73 -> 3.99 mm, the others unchanged,
+    # docs/tracking-findings.md)
     sdf_carve_init: bool = True
     sdf_carve_value: float = 0.005  # S (m) given to those voxels
-    # spin closure: axis of a model whose weak rotations mix (an egg) refitted to its radius profile ("mixed"),
-    # every axis so ("always") or none ("off"); "multi": as "mixed", the refit started from every rotation eigen-axis
-    # too (spin.profile_starts), the best profile fit kept (egg 707 6.91 -> 6.82 deg median, 30.39 -> 28.44 worst; the
-    # other evaluation sessions identical; development egg 1002 29.49 -> 13.09, docs/tracking.md); a correction above
+    # spin closure: axis of a model whose weak rotations mix (an egg) refitted to its radius profile ("mixed"), every
+    # axis so ("always") or none ("off"); "multi": as "mixed", the refit started from every rotation eigen-axis too
+    # (spin.profile_starts), the best profile fit kept (egg 707 6.91 -> 6.82 deg median, 30.39 -> 28.44 worst; the other
+    # evaluation sessions identical; development egg 1002 29.49 -> 13.09, docs/tracking-findings.md); a correction above
     # spin_max_deg in any frame is not applied (0: no cap)
     spin_profile: str = "multi"
     spin_max_deg: float = 120.0
-    # gauge of the body frame (service.tracking.gauge): X̂_0 = robust mean of frame 0's registration to the final
-    # model and of the final poses of up to gauge_frames frames at rest — before the end effector comes within
-    # ee_radius + gauge_ee_margin of the model, within gauge_max_deg / gauge_max_dist of frame 0 (0: frame 0 alone;
-    # no robot data: frame 0 alone).
-    # On: l_block 702 2.72° / 5.40° -> 1.59° / 4.04°, no material loss elsewhere (docs/tracking.md, "Worst frames")
+    # gauge of the body frame (service.tracking.gauge): X̂_0 = robust mean of frame 0's registration to the final model
+    # and of the final poses of up to gauge_frames frames at rest — before the end effector comes within ee_radius +
+    # gauge_ee_margin of the model, within gauge_max_deg / gauge_max_dist of frame 0 (0: frame 0 alone; no robot data:
+    # frame 0 alone). On: l_block 702 2.72° / 5.40° -> 1.59° / 4.04°, no material loss elsewhere
+    # (docs/tracking-findings.md, "Worst frames")
     gauge_frames: int = 30
     gauge_max_deg: float = 5.0
     gauge_max_dist: float = 0.01
@@ -204,10 +173,10 @@ class TrackingConfig:
     landing_table_frac: float = 0.02
     landing_seen_frac: float = 0.05  # ... or more of its points where the frame's depth reading lies behind them
     sdf_band_px: int = 1  # min filter (pixels) of the views' depth for sdf_drop_contradicted (silhouettes do not count)
-    sdf_band_frames: int = 0  # evenly spread tracked frames whose views test the readings (0: the SDF's frames)
     # object rays whose point sdf_contradict_views of the SDF's frames saw in front of their own reading by more than
     # sdf_contradict_margin (min filter sdf_band_px) are dropped (visible.drop_contradicted; flying pixels,
-    # misregistered edges; with w_empty 300: 12 evaluation sessions 0.2-1.3 mm better, egg 707 +0.06, docs/tracking.md)
+    # misregistered edges; with w_empty 300: 12 evaluation sessions 0.2-1.3 mm better, egg 707 +0.06,
+    # docs/tracking-findings.md)
     sdf_drop_contradicted: bool = True
     sdf_contradict_margin: float = 0.005
     sdf_contradict_views: int = 3  # ... by at least this many frames
@@ -220,7 +189,7 @@ class TrackingConfig:
     # spin.spin_links, solve_spin_graph: spin_graph_short links to the nearest earlier frames, plus longer links only
     # between frames whose views differ by less than spin_graph_gate_deg and by at most spin_graph_rate_deg per frame
     # between them; links need spin_graph_votes votes — over fast stretches where the chain has few votes: 704
-    # 17.3°/22.0° -> 5.2°/7.9°, 707, 708, 711 within 0.05° median; docs/tracking.md "Mixed spin estimate")
+    # 17.3°/22.0° -> 5.2°/7.9°, 707, 708, 711 within 0.05° median; docs/tracking-findings.md "Mixed spin estimate")
     spin_solver: str = "mixed"
     spin_graph_gate_deg: float = 10.0
     spin_graph_rate_deg: float = 0.5  # 0: no rate test
@@ -230,7 +199,7 @@ class TrackingConfig:
     # spin_solver "mixed" (spin.spin_mixed): the chain, except in fast stretches — tracked rotation above
     # spin_mixed_rate_deg per frame over spin_mixed_span frames, widened by spin_mixed_dilate frames each side — where
     # the chain pooled fewer than spin_mixed_votes votes: those frames (widened again) take the graph's increments
-    # (docs/tracking.md, "Mixed spin estimate")
+    # (docs/tracking-findings.md, "Mixed spin estimate")
     spin_mixed_rate_deg: float = 2.0
     spin_mixed_span: int = 4
     spin_mixed_dilate: int = 4
@@ -248,15 +217,15 @@ class TrackingConfig:
     mask_trim_iters: int = 3
     mask_trim_deep_px: int = 3
     mask_trim_min: float = 0.01
-    # the settled object after a topple's landing (service.tracking.resettle; docs/tracking.md "Settled object joined
-    # by the fall's physics"): resettle_delay frames after the last fast step of the loop (> settle_fast_deg per
-    # frame), when the steps from resettle_tip_deg per frame on turned >= resettle_min_tip_deg about a horizontal
-    # axis, the pose of the pre-fall model tipped about its leading bottom edge onto its leading (flat) face (corrected
-    # by the faces both views show, at most resettle_max_shift / resettle_max_yaw_deg; yaw 0: not corrected) replaces
-    # the tracked pose when they differ by resettle_min_deg / resettle_min_dist (the join itself is 1-3 deg / 5-18 mm
-    # off on the development topples) and the frame sees through at most resettle_seen more of the pre-fall model at
-    # the new pose than at the tracked one; the fall's keyframes are dropped, the frame becomes a keyframe with all
-    # its points and the fall is registered backwards from it
+    # the settled object after a topple's landing (service.tracking.resettle; docs/tracking-findings.md "Settled object
+    # joined by the fall's physics"): resettle_delay frames after the last fast step of the loop (> settle_fast_deg per
+    # frame), when the steps from resettle_tip_deg per frame on turned >= resettle_min_tip_deg about a horizontal axis,
+    # the pose of the pre-fall model tipped about its leading bottom edge onto its leading (flat) face (corrected by the
+    # faces both views show, at most resettle_max_shift; the yaw is not corrected) replaces the tracked pose when they
+    # differ by resettle_min_deg / resettle_min_dist (the join itself is 1-3 deg / 5-18 mm off on the development
+    # topples) and the frame sees through at most resettle_seen more of the pre-fall model at the new pose than at the
+    # tracked one; the fall's keyframes are dropped, the frame becomes a keyframe with all its points and the fall is
+    # registered backwards from it
     resettle: bool = True  # on: evaluation 710 15.69 deg / 58.55 mm -> 2.72 deg / 6.31 mm median, all others identical
     resettle_delay: int = 6
     resettle_tip_deg: float = 0.3
@@ -264,13 +233,12 @@ class TrackingConfig:
     resettle_min_deg: float = 8.0
     resettle_min_dist: float = 0.03
     resettle_max_shift: float = 0.03
-    resettle_max_yaw_deg: float = 0.0
     resettle_seen: float = 0.02
     # support closure (visible.support_feet): the SDF's initial hull also takes the foot of every observed surface
     # point on the table plane at frame 0 (the object rests on the table, so the never-seen space below what was
     # seen is object unless a keyframe saw it empty, which the carving then removes); needs below_table_outside.
     # Off: the hidden lower part and the back are closed by the hull of the seen points 1-2 cm above the table.
-    # Acts only with below_table_outside (the plane); on, with sdf_support_open and its gate (docs/tracking.md)
+    # Acts only with below_table_outside (the plane); on, with sdf_support_open and its gate (docs/tracking-findings.md)
     sdf_support_hull: bool = True
     # the join moved along the tipping direction by the settled segment's own evidence (tracker._resettle_refine,
     # resettle.base_shift): the base must not lie where the first resettle_refine_frames tracked frames from the settled
@@ -292,29 +260,15 @@ class TrackingConfig:
     # spin closure (spin.smooth_twist): median-filter the corrected twist of the body (its rotation about the axis since
     # frame 0, tracked + correction) over this many frames instead of the correction alone over spin_smooth; the
     # tracker's own twist jitters 1-3° from frame to frame and the correction must carry that; 0 or 1: off, the
-    # correction median-filtered over spin_smooth as before (docs/tracking.md "Twist smoothed instead of the correction";
-    # development bottle pivots 911 7.05° -> 4.17°, 553 7.08° -> 3.53° worst frame)
+    # correction median-filtered over spin_smooth as before (docs/tracking-findings.md "Twist smoothed instead of the
+    # correction"; development bottle pivots 911 7.05° -> 4.17°, 553 7.08° -> 3.53° worst frame)
     spin_twist_smooth: int = 15
-    # spin closure (spin.spin_closure, every solver): besides frame 0, the 3 latest and up to 8 older anchors spread
-    # over the session, a frame's spin is voted against this many older anchors whose corrected poses are turned
-    # least from its own (the same view of the body: the view-dependent bias of the votes, keypoints that shift with
-    # the view and depth noise turned into azimuth, is alike at both ends and cancels); 0: off (docs/tracking.md
-    # "Anchors from the nearest views"; off: with 4, evaluation 711 worst 6.26 -> 5.48 deg but 704 median 1.44 -> 2.45,
-    # 2.42 with spin_view_upright_deg below)
-    spin_view_anchors: int = 0
-    # ... and only while the body is upright: a frame whose symmetry axis is more than this from the vertical of W
-    # (lying after a topple, rolling) takes no view anchors, and only upright anchors are candidates. A lying body of
-    # revolution changes its view by rolling about that axis, i.e. by the very spin the chain estimates, so its
-    # "nearest views" are the frames whose estimated spin is nearest (the roll's own preceding frames), not an earlier
-    # measurement of the same view (docs/tracking.md "View anchors only while upright": development topple 1023 median
-    # 2.55 -> 1.82 deg with 4 anchors, off 1.85; pivots unchanged); 90: every frame
-    spin_view_upright_deg: float = 45.0
     # a body of revolution does not turn about its own axis while it topples (service.tracking.fall: no force on it
     # has a moment about the axis): over a topple of the tracked poses (the axis' angle from the vertical changing by
     # more than spin_fall_rate_deg per frame and by >= spin_fall_min_deg in all, trimmed by spin_fall_edge_deg at
     # both ends) the spin correction takes the increments that leave the tracked rotation no twist about the axis,
     # when the default estimate's spin change over it differs from theirs by more than spin_fall_tol_deg (spin_solver
-    # "mixed" only); docs/tracking.md "Fall without spin"
+    # "mixed" only); docs/tracking-findings.md "Fall without spin"
     spin_fall: bool = True  # on: evaluation 704 5.21 -> 2.08 deg median rotation (worst 7.86 -> 9.73), others identical
     spin_fall_rate_deg: float = 0.4
     spin_fall_min_deg: float = 45.0
@@ -325,45 +279,16 @@ class TrackingConfig:
     # spin_fall_edge_deg, reaches spin_pivot_deg and comes back, the spin correction keeps the tracked rotation free of
     # twist about the axis from the upright frame before the tilt, the difference to the correction of the upright
     # frame after it spread along the tilt, unless the correction already stays within spin_fall_tol_deg of that
-    # bridge; 0: off (docs/tracking.md "Worst frames of milk-carton topples and bottle pivots")
+    # bridge; 0: off (docs/tracking-findings.md "Worst frames of milk-carton topples and bottle pivots")
     spin_pivot_deg: float = 5.0  # on: development bottle pivots 1471 11.13 -> 3.15, 1474 13.84 -> 5.79 deg worst;
     # evaluation 711 1.11 / 6.26 -> 1.15 / 4.16 deg, the others identical
-    # a topple's no-twist stretch (spin_fall) starts from the median corrected twist (tracked twist + correction) of the
-    # last this many chain-voted frames before it (spin.entry_spin: the body standing before a topple does not turn
-    # about its axis either) instead of the raw chain value of its one entry frame, whose ±2-4° jitter at the
-    # topple's onset the stretch would carry to the end of the session (docs/tracking.md "The entry of a topple's
-    # stretch"; 15: evaluation 704 1.44 -> 1.40 deg median, the rest identical; development topples' entry error 1.35
-    # -> 0.53 deg mean, but fresh topples 0.39 -> 0.68 and their medians up to +1.04 deg: off); 0: off, the previous
-    # outputs bit for bit; otherwise >= 3
-    spin_fall_entry: int = 0
-    # the light's features on a rolling body dropped from the spin votes (spin.lit_matches): a body of revolution
-    # lying on the table (axis within spin_lit_lie_deg of the horizontal in both frames of a pair) whose axis line
-    # moved across itself by d >= spin_lit_move (m) turned, by d / R rolling on its radius R (the model's 90th
-    # percentile distance from the axis); matches whose azimuth about the axis line (from the vertical) changed by
-    # less than spin_lit_frac * d / R kept their place under the world-fixed light (shading edges, highlights: a turn
-    # about the axis leaves the shading of a body of revolution unchanged) and are left out of the chain's votes when
-    # enough remain (spin_lit_keep); 0: off (docs/tracking.md "Lit features on a rolling body")
-    # (0.7: development 1022 10.33 / 21.14 -> 6.85 / 10.20 deg, but 1326 7.15 -> 8.69 median; evaluation 704 worst
-    # frame 8.58 -> 6.14, 707 median 6.82 -> 6.91: off)
-    spin_lit_frac: float = 0.0
-    spin_lit_move: float = 0.004
-    spin_lit_lie_deg: float = 15.0
-    spin_lit_keep: float = 0.5  # a frame whose votes the test cuts below this share keeps them all (the body slid)
-    # the leading face made perpendicular to the base the object stood on at frame 0 when its fitted normal is within
-    # resettle_square_deg of that (resettle.landing_pose; 0: off)
-    resettle_square_deg: float = 0.0  # 5: development 820 join 1.42 -> 0.55 deg, median 1.99 -> 1.26 deg
-    # a join within resettle_min_deg / resettle_min_dist of the tracked pose is adopted too when the tracked pose has
-    # the face the join lays on the table more than resettle_rest_deg from flat or resettle_rest_dist above or below
-    # the table (resettle.rest_offsets: a settled object rests on the table; 0: off)
-    resettle_rest_deg: float = 0.0  # 3: development 840 4.65 -> 1.32 deg median, 861 6.97 -> 1.78 deg (3.67 -> 9.49 mm)
-    resettle_rest_dist: float = 0.005
     # a body of revolution lying on the table has its axis parallel to the table plane (its widest straight stretch,
     # the lowest generator line, touches the table): after the spin closure, when the body stood on its base at
     # frame 0 (found axis within lie_level_stand_deg of the vertical: the axis is then the vertical of frame 0) and
     # its profile has a straight widest stretch, every frame with the axis within lie_level_deg of the horizontal (it
     # and its 3 neighbours on each side) and that stretch within lie_level_margin of the table is turned about the
     # horizontal through its centroid's axis point until the axis is horizontal (at most lie_level_max_deg;
-    # service.tracking.lying, docs/tracking.md "Lying body levelled")
+    # service.tracking.lying, docs/tracking-findings.md "Lying body levelled")
     lie_level: bool = True  # on: development 531 4.94 -> 2.68 deg median; evaluation 704 1.91 / 10.05 -> 1.44 / 8.58
     lie_level_stand_deg: float = 15.0
     lie_level_deg: float = 15.0
@@ -373,41 +298,29 @@ class TrackingConfig:
     # model covering a short band of the body fails) is taken for one when its weakest direction is one clear
     # rotation whose normals lie in the meridian planes, κ = Σ (n·(a×d))² / Σ |a×d|² < spin_arc_tau (the motion seen
     # by the surface as a fraction of the arc each point moves), and its radius profile fits within 2 mm
-    # (spin.partial_tau; 0: off; docs/tracking.md "Bodies of revolution seen in part")
+    # (spin.partial_tau; 0: off; docs/tracking-findings.md "Bodies of revolution seen in part")
     spin_arc_tau: float = 0.08  # development partial bottle pivots 940, 941, 943, 944: worst 6.2-7.8 -> 2.5-3.4 deg
     # a model the body-of-revolution test takes for one (spin_tau, spin_arc_tau) is refused when its normals leave the
     # meridian planes about the closure's axis by κ >= spin_flat_kappa (κ as for spin_arc_tau: flat faces, a prism
     # whose spin the λ̂ test, scaled by the model's length, misses); no correction then (spin.flat_faced; 0: off;
-    # docs/tracking.md "Boxes are not bodies of revolution")
+    # docs/tracking-findings.md "Boxes are not bodies of revolution")
     spin_flat_kappa: float = 0.12
-    # egg-like bodies (the spin axis found by its radius profile: every rotation about the centre weak): after the
-    # spin closure, the rotations about the two short axes re-estimated from interior keypoints matched to frame 0
-    # and earlier corrected frames, in the frames whose spin the texture measured, when the model is longer along
-    # its axis than across (service.tracking.tilt; only with spin_closure on; docs/tracking.md "Eggs: where the error comes
-    # from"; the evaluation sessions, egg 707 included, identical bit for bit)
+    # egg-like bodies (the spin axis found by its radius profile: every rotation about the centre weak): after the spin
+    # closure, the rotations about the two short axes re-estimated from interior keypoints matched to frame 0 and
+    # earlier corrected frames, in the frames whose spin the texture measured, when the model is longer along its axis
+    # than across (service.tracking.tilt; only with spin_closure on; docs/tracking-findings.md "Eggs: where the error
+    # comes from"; the evaluation sessions, egg 707 included, identical bit for bit)
     spin_tilt: bool = True  # development eggs 512 7.31 -> 5.54 deg median, 922 17.05 -> 14.39, 924 3.23 -> 1.54
     # (re-measured on the later development eggs: acts on 9 fresh ones, off gains on 3, loses on 2, mixed on 3, level on
-    # 1; off gains on 1361, 1362, 1370: kept on; docs/tracking.md "Does the tilt closure still earn its place?")
-    # egg-like bodies (as spin_tilt): after the closures, up to spin_rounds more rounds, each rebuilding the model from
-    # the keyframe points placed at the corrected poses and running the closures again from the corrected poses; a
-    # round is kept only when its spin correction stays within spin_rounds_max_deg in every frame (the texture agrees
-    # with the corrected poses: a refinement, not a new estimate), else it and the later rounds are dropped
-    # (tracker._spin_rounds; 0: off, the default; 2 tried: docs/tracking.md "Eggs: where the loop loses the roll";
-    # development egg 1364 2.16 -> 1.75 deg median, one of the eggs the cap was set on, the six eggs made after it
-    # identical; evaluation egg 707 6.82 / 28.44 -> 6.75 / 28.52, the others identical: no gain beyond noise)
-    spin_rounds: int = 0
-    # the spin closure's axis (service.tracking.tracker._closure_axis): "model" (default) the final model's, refitted
-    # to its radius profile (spin_profile); other names: its direction from data the loop's swing did not smear
-    # (docs/tracking.md "The spin closure's axis from data the loop's swing did not smear")
-    spin_axis_from: str = "model"
-    spin_rounds_max_deg: float = 5.0
-    # the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass): the face
-    # of the pre-fall model that lies on the table at the settled frame (resettle.landed_face) is laid flush with the
-    # table in every frame of the stretch whose pose has it within resettle_flush_deg of flat (resettle.flush_pose:
-    # an object at rest on a face has it on the table; two tilts and the height), the stretch's keyframes moved with
-    # their frames and the model rebuilt, then each frame re-registered in the motions that keep it resting (a turn
-    # about the vertical and a horizontal shift, resettle.planar_register; 0: off)
-    resettle_flush_deg: float = 10.0  # on: development topples: 7 of 7 lower median rotation (docs/tracking.md)
+    # 1; off gains on 1361, 1362, 1370: kept on; docs/tracking-findings.md "Does the tilt closure still earn its
+    # place?") the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass):
+    # the face of the pre-fall model that lies on the table at the settled frame (resettle.landed_face) is laid flush
+    # with the table in every frame of the stretch whose pose has it within resettle_flush_deg of flat
+    # (resettle.flush_pose: an object at rest on a face has it on the table; two tilts and the height), the stretch's
+    # keyframes moved with their frames and the model rebuilt, then each frame re-registered in the motions that keep it
+    # resting (a turn about the vertical and a horizontal shift, resettle.planar_register; 0: off)
+    resettle_flush_deg: float = 10.0  # on: development topples: 7 of 7 lower median rotation
+    # (docs/tracking-findings.md, "Worst frames of l_block 702 and milk_carton topple 710")
     # the landed face's fitted normal made square to the base the object stood on at frame 0 when within
     # resettle_flush_square_deg of it (a side of a prism standing on its base; 0: the fitted normal as it is)
     resettle_flush_square_deg: float = 5.0
@@ -441,29 +354,21 @@ class TrackingConfig:
             if f.type in ("bool", bool) and not isinstance(getattr(self, f.name), (bool, np.bool_)):
                 raise ValueError(f"TrackingConfig.{f.name} must be true or false, not {getattr(self, f.name)!r}")
         for name in ("max_speed", "max_rate_deg", "kf_min_new_add", "spin_tau", "spin_sep",
-                     "spin_border_px", "spin_tol", "spin_inlier_deg", "kf_still_rate_deg", "kf_still_max_frames",
-                     "crease_dist", "gauge_frames", "gauge_max_deg", "gauge_max_dist", "gauge_ee_margin",
-                     "landing_table_margin", "landing_table_frac", "landing_seen_frac", "spin_lit_frac",
-                     "spin_lit_move", "spin_lit_lie_deg", "spin_lit_keep", "spin_view_anchors"):
+                     "spin_border_px", "spin_tol", "spin_inlier_deg", "gauge_frames", "gauge_max_deg",
+                     "gauge_max_dist", "gauge_ee_margin",
+                     "landing_table_margin", "landing_table_frac", "landing_seen_frac"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         for name in ("spin_features", "spin_min_votes", "spin_smooth"):
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
 
-        for name in ("kf_still_speed", "kf_still_tilt_deg", "track_ransac_thr"):
-            if getattr(self, name) is not None and not getattr(self, name) >= 0:
-                raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
-        for name in ("track_ransac_px", "track_ransac_kf_px"):
-            v = getattr(self, name)
-            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0):
-                raise ValueError(f"TrackingConfig.{name} must be None or > 0 (pixels), not {v!r}")
+        v = self.track_ransac_px
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0):
+            raise ValueError(f"TrackingConfig.track_ransac_px must be None or > 0 (pixels), not {v!r}")
         if self.spin_profile not in ("off", "mixed", "multi", "always"):
             raise ValueError("TrackingConfig.spin_profile must be 'off', 'mixed', 'multi' or 'always', "
                              f"not {self.spin_profile!r}")
-        if self.spin_axis_from not in ("model", "still", "lying"):
-            raise ValueError("TrackingConfig.spin_axis_from must be 'model', 'still' or 'lying', "
-                             f"not {self.spin_axis_from!r}")
         if self.spin_solver not in ("chain", "mixed"):
             raise ValueError(f"TrackingConfig.spin_solver must be 'chain' or 'mixed', not {self.spin_solver!r}")
         if not self.spin_mixed_rate_deg >= 0:
@@ -474,10 +379,6 @@ class TrackingConfig:
             raise ValueError(f"TrackingConfig.spin_mixed_votes must be >= 0, not {self.spin_mixed_votes!r}")
         if not self.spin_mixed_dilate >= 0:
             raise ValueError(f"TrackingConfig.spin_mixed_dilate must be >= 0, not {self.spin_mixed_dilate!r}")
-        if not (isinstance(self.spin_rounds, int) and self.spin_rounds >= 0):
-            raise ValueError(f"TrackingConfig.spin_rounds must be an int >= 0, not {self.spin_rounds!r}")
-        if not self.spin_rounds_max_deg > 0:
-            raise ValueError(f"TrackingConfig.spin_rounds_max_deg must be > 0, not {self.spin_rounds_max_deg!r}")
         if not (isinstance(self.spin_twist_smooth, int) and self.spin_twist_smooth >= 0):
             raise ValueError(f"TrackingConfig.spin_twist_smooth must be an int >= 0, not {self.spin_twist_smooth!r}")
         for name in ("spin_graph_gate_deg", "spin_graph_rate_deg"):
@@ -488,18 +389,7 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not self.spin_max_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
-        if not (isinstance(self.spin_view_anchors, int) and not isinstance(self.spin_view_anchors, bool)):
-            raise ValueError(f"TrackingConfig.spin_view_anchors must be an int >= 0, not {self.spin_view_anchors!r}")
-        for name, hi in (("spin_lit_frac", 1.0), ("spin_lit_keep", 1.0), ("spin_lit_lie_deg", 90.0)):  # shares, an angle
-            if not getattr(self, name) <= hi:
-                raise ValueError(f"TrackingConfig.{name} must be <= {hi:g}, not {getattr(self, name)!r}")
-        k = self.spin_fall_entry
-        if isinstance(k, bool) or not isinstance(k, int) or not (k == 0 or k >= 3):
-            raise ValueError(f"TrackingConfig.spin_fall_entry must be 0 or an int >= 3, not {self.spin_fall_entry!r}")
-        u = self.spin_view_upright_deg
-        if isinstance(u, bool) or not isinstance(u, (int, float)) or not 0 < u <= 90:
-            raise ValueError(f"TrackingConfig.spin_view_upright_deg must be in (0, 90], not {self.spin_view_upright_deg!r}")
-        for name in ("sdf_band_px", "sdf_band_frames", "sdf_contradict_margin"):
+        for name in ("sdf_band_px", "sdf_contradict_margin"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not self.sdf_contradict_views >= 1:
@@ -525,16 +415,11 @@ class TrackingConfig:
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
         for name in ("resettle_tip_deg", "resettle_min_tip_deg", "resettle_min_deg", "resettle_min_dist",
-                     "resettle_max_shift", "resettle_max_yaw_deg", "resettle_seen"):
+                     "resettle_max_shift", "resettle_seen"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not self.resettle_delay >= 1:
             raise ValueError(f"TrackingConfig.resettle_delay must be >= 1, not {self.resettle_delay!r}")
-        if not 0.0 <= self.resettle_square_deg < 90.0:
-            raise ValueError(f"TrackingConfig.resettle_square_deg must be in [0, 90), not {self.resettle_square_deg!r}")
-        if not (self.resettle_rest_deg >= 0 and self.resettle_rest_dist > 0):
-            raise ValueError(f"TrackingConfig.resettle_rest_deg must be >= 0 and resettle_rest_dist > 0, not "
-                             f"{self.resettle_rest_deg!r}, {self.resettle_rest_dist!r}")
         for name in ("resettle_flush_deg", "resettle_flush_square_deg"):
             if not 0.0 <= getattr(self, name) < 90.0:
                 raise ValueError(f"TrackingConfig.{name} must be in [0, 90), not {getattr(self, name)!r}")

@@ -81,7 +81,7 @@ def blended_pixels(depth: np.ndarray, mask: np.ndarray, px: int, jump: float, ma
     two, behind the object's surface, in space the object does not fill (and that the camera cannot see: it is in
     the object's shadow), so the reading is not the object's. One image does not tell such a blend from a narrow
     face seen at grazing next to the outline (a box's top beside its front face): that face lies behind the
-    interior's plane too (docs/tracking.md, "The real cube's long extent")."""
+    interior's plane too (docs/tracking-findings.md, "The real cube's long extent")."""
     import cv2
 
     sil = silhouette_pixels(depth, mask, px, jump)

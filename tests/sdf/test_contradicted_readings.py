@@ -27,7 +27,6 @@ def test_contradicted_readings_finds_a_reading_other_views_saw_through():
 def test_tracking_options_are_validated():
     from service.tracking import TrackingConfig
 
-    for name, bad in (("sdf_band_px", -1), ("sdf_band_frames", -1),
-                      ("sdf_contradict_margin", -0.001), ("sdf_contradict_views", 0)):
+    for name, bad in (("sdf_band_px", -1), ("sdf_contradict_margin", -0.001), ("sdf_contradict_views", 0)):
         with pytest.raises(ValueError, match=name):
             TrackingConfig(**{name: bad})

@@ -153,7 +153,8 @@ def test_config_refuses_bad_spin_settings():
     for bad in ({"spin_min_votes": 0}, {"spin_tau": -0.1}, {"spin_smooth": 0}):
         with pytest.raises(ValueError):
             TrackingConfig(**bad)
-    assert TrackingConfig().spin_closure  # on by default (docs/tracking.md, evaluation table of the spin closure)
+    assert TrackingConfig().spin_closure  # on by default (docs/tracking-findings.md, "Spin closure of bodies of
+    # revolution")
 
 
 def _egg_model(n: int = 3000, noise: float = 0.2, rng=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

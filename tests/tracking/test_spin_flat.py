@@ -19,7 +19,7 @@ from service.transforms import make_X, so3_exp
 from tests.tracking.test_spin import _egg_model
 from tests.tracking.test_spin_partial import _bottle
 
-KAPPA = 0.12  # the threshold the tests use (docs/tracking.md "Boxes are not bodies of revolution")
+KAPPA = 0.12  # the threshold the tests use (docs/tracking-findings.md "Boxes are not bodies of revolution")
 
 
 def _prism(seed: int = 0, n: int = 3000, noise_deg: float = 20.0, ext=(0.30, 0.06, 0.06)):

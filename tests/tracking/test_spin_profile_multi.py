@@ -56,7 +56,7 @@ def test_profile_starts():
 
 
 def test_config():
-    assert TrackingConfig().spin_profile == "multi"  # on by default (docs/tracking.md)
+    assert TrackingConfig().spin_profile == "multi"  # on by default (docs/tracking.md, step 13)
     TrackingConfig(spin_profile="mixed")
     with pytest.raises(ValueError):
         TrackingConfig(spin_profile="best")

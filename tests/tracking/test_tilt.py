@@ -81,7 +81,7 @@ def test_textureless_unchanged():
 
 
 def test_config():
-    assert TrackingConfig().spin_tilt  # on by default (docs/tracking.md "Tilt closure of egg-like bodies")
+    assert TrackingConfig().spin_tilt  # on by default (docs/tracking-findings.md "Eggs: where the error comes from")
     from service.tracking.tracker import _spin_tilt
 
     X = np.repeat(np.eye(4)[None], 3, 0)  # no spin closure (spin_closure off): no spin result, nothing done

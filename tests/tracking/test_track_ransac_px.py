@@ -46,7 +46,7 @@ def test_camera_consensus_drops_static_keypoints_and_keeps_noisy_depth():
     for seed in range(10):
         fW, fO, static = _rolling_cap(seed)
         Xw, iw = _feature_motion(fW, fO, TrackingConfig(), np.random.default_rng(0), cam=(K, X_CW))
-        Xt, it = _feature_motion(fW, fO, TrackingConfig(track_ransac_thr=0.004), np.random.default_rng(0))
+        Xt, it = ransac_rigid(fW, fO, 0.004, rng=np.random.default_rng(0), min_inliers=12)  # a 4 mm ball
         Xr, ir = _feature_motion(fW, fO, TrackingConfig(track_ransac_px=2.0), np.random.default_rng(0), cam=(K, X_CW))
         lag_wide.append(_lag(Xw))
         lag_ray.append(_lag(Xr))
