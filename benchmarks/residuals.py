@@ -4,7 +4,7 @@ reliably it recovers hidden effects in simulated tosses.
 Synthetic: cube tosses simulated with one hidden effect (0.15 mm tracking noise, 20 tosses), and a
 30 Hz pushing session with a hidden object-table friction; the loop starts from the base model. The tosses are made by
 tests/residuals/lab.py with its contact breaking threshold (1 mm, so that a declared restitution is the bounce the data
-show; ``--toss-contact-breaking off`` makes them as before, with Bullet's 0.02 m, docs/residuals.md §7).
+show; ``--toss-contact-breaking off`` makes them as before, with Bullet's 0.02 m, docs/residuals-findings.md).
 
 Real data: base model = the true-size cube (side 0.1048 m, mass 0.37 kg, μ 0.15, uniform-density
 inertia m s²/6), table at z = 0, no robot. Tosses are split into training and held-out tosses
@@ -459,11 +459,11 @@ def strike(args) -> None:
         lab_sim.STRIKE_TOUCH_SPLIT = False  # 'bullet': every sphere-object contact point as Bullet makes it
         if args.lab_strike_contact == "bullet":
             pass
-        elif args.lab_strike_contact == "split":  # the step split at the time of impact (§7, "A strike's contact ...")
+        elif args.lab_strike_contact == "split":  # the step split at the time of impact (docs/residuals-findings.md, "A strike's contact ...")
             lab_sim.STRIKE_TOUCH_SPLIT = True
         else:
             lab_sim.STRIKE_CONTACT_PROCESSING_M = lab_sim.STRIKE_TOUCH_PROCESSING_M  # solved from the touch on
-        if args.lab_strike_contact == "velocity":  # and no push-out of its overlap (docs/residuals.md §7, "The launch kick")
+        if args.lab_strike_contact == "velocity":  # and no push-out of its overlap (docs/residuals-findings.md, "The launch kick")
             lab_sim.STRIKE_CONTACT_STIFFNESS_DAMPING = lab_sim.STRIKE_VELOCITY_ONLY
     n_ok = n = 0
     for case in args.cases:
@@ -584,7 +584,7 @@ def main() -> None:
                    help='JSON of ResidualConfig fields for the toss cases, e.g. \'{"init_fit_frames_flight": 41}\'')
     s.add_argument("--toss-contact-breaking", default=None, metavar="M", type=off_or_float,
                    help="contact breaking threshold of the toss generator (tests/residuals/lab.py) in m, or 'off' for "
-                        "Bullet's 0.02 m (the generator before docs/residuals.md §7 'The toss generator's bounce'); "
+                        "Bullet's 0.02 m (the generator before docs/residuals-findings.md 'The toss generator's bounce'); "
                         "default: the generator's default, 1 mm")
     lb = sub.add_parser("lab")
     lb.add_argument("--seeds", type=int, nargs="+", default=[601, 602])
@@ -601,7 +601,7 @@ def main() -> None:
     st.add_argument("--mu", type=float, default=0.15)
     st.add_argument("--physics-hz", type=float, default=None,
                     help="the lab's physics rate in Hz (SynthSpec.physics_hz, a multiple of the 30 Hz frame rate; "
-                         "default: the spec's, 240); docs/residuals.md §7 'Angular damping on strikes'")
+                         "default: the spec's, 240); docs/residuals-findings.md 'Angular damping on strikes'")
     st.add_argument("--candidates", nargs="+", default=None,
                     help="candidate effects for every case (default: each case's own: its effect and two look-alikes)")
     st.add_argument("--pose-noise", type=float, default=5e-4,
@@ -617,7 +617,7 @@ def main() -> None:
                          "docs/residuals.md §6): lead or inverse (the constraint's update inverted, the config's default)")
     st.add_argument("--robot-smooth-weights", choices=("box", "biweight"), default=None,
                     help="weights of the local quadratic fit that smooths the measured sphere path "
-                         "(ResidualConfig.robot_smooth_weights, docs/residuals.md §7): box (Savitzky-Golay) or biweight (the "
+                         "(ResidualConfig.robot_smooth_weights, docs/residuals-findings.md): box (Savitzky-Golay) or biweight (the "
                          "config's default); the former defaults: --sphere-drive lead --robot-smooth-weights box "
                          "--robot-smooth 0.04")
     st.add_argument("--robot-smooth", type=float, default=None, metavar="S",
@@ -628,7 +628,7 @@ def main() -> None:
                          "on ('touch': service.synth.sim.STRIKE_TOUCH_PROCESSING_M; the bounces kept, launches up to 7 "
                          "%% fast), or also at the velocity level only ('velocity': no push-out of the overlap, "
                          "sim.STRIKE_VELOCITY_ONLY), or with the step split at the time of impact ('split': "
-                         "sim.STRIKE_TOUCH_SPLIT, the contact starting at the touch); docs/residuals.md §7")
+                         "sim.STRIKE_TOUCH_SPLIT, the contact starting at the touch); docs/residuals-findings.md")
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
     for sp in (r, s, lb, st):
@@ -649,15 +649,15 @@ def main() -> None:
                              "(ResidualConfig.contact_breaking_m, docs/residuals.md §6); default: the config's default")
         sp.add_argument("--touch-split", action=argparse.BooleanOptionalAction, default=None,
                         help="the loop's sub-step split at the robot sphere's time of impact (ResidualConfig.touch_split, "
-                             "on by default; --no-touch-split: off; docs/residuals.md §7 'A strike's contact that starts "
+                             "on by default; --no-touch-split: off; docs/residuals-findings.md 'A strike's contact that starts "
                              "at the touch')")
         sp.add_argument("--contact-persist", default=None, metavar="M", type=off_or_float,
                         help="threshold of the object-table manifold re-made at the first touch in m, or 'off' "
-                             "(ResidualConfig.contact_persist_m, docs/residuals.md §7 'Resting contact ...')")
+                             "(ResidualConfig.contact_persist_m, docs/residuals-findings.md 'Resting contact ...')")
         sp.add_argument("--restitution-threshold", default=None, metavar="V", type=float,
                         help="relative normal speed in m/s below which the loop's simulator gives a contact no bounce "
                              "(ResidualConfig.restitution_threshold_mps; default: the config's, 0.05; the synthetic "
-                             "lab keeps Bullet's 0.2; docs/residuals.md §7 'Restitution on strikes as a test')")
+                             "lab keeps Bullet's 0.2; docs/residuals-findings.md 'Restitution on strikes as a test')")
     args = ap.parse_args()
     # refused before any session is made (naming the flag), not by a traceback from the loop's config
     if args.folds < 1:

@@ -17,14 +17,14 @@ value ("after", the floor), from start states and against poses mixed from estim
 ``true`` against ``clean`` is the simulator/time-step mismatch (the rollout is the loop's simulator with the config's
 settings, ``simulate.simulator_for``, from the same state; the tosses are generated at the generator's contact breaking
 threshold, 1 mm); ``true`` against ``obs`` the pose noise of the compared frames; the rows between split the
-start-state part. The figures of docs/residuals.md §7 "The floor the right model keeps" were made with the rollouts at
+start-state part. The figures of docs/residuals-findings.md "The floor the right model keeps" were made with the rollouts at
 Bullet's 0.02 m, before the loop's default became 1 mm: ``--config '{"contact_breaking_m": null}'`` replays so.
 
     python benchmarks/residuals_floor.py --seeds 39 40 [--cases angular_damping restitution ...]
         [--config '{"init_fit_frames_flight": 41}']   (ResidualConfig fields: the loop's start state to diagnose)
 
-(The per-model flight start, ``flight_start_model``, that the third command of §7's AC ran with, was removed from the
-loop after it was measured: docs/residuals.md §7, "The floor the right model keeps".)
+(The per-model flight start, ``flight_start_model``, that the third command of the findings' AC ran with, was removed from the
+loop after it was measured: docs/residuals-findings.md, "The floor the right model keeps".)
 """
 
 from __future__ import annotations

@@ -1,11 +1,11 @@
-"""Diagnosis of the friction–damping look-alike on strikes (docs/residuals.md §7, "Friction and damping told apart").
+"""Diagnosis of the friction–damping look-alike on strikes (docs/residuals-findings.md, "Friction and damping told apart").
 
 Runs the loop on synthetic-lab strike sessions (the strike benchmark's settings: catalogue model, 2 folds) and, for
 every round in which both the table friction and the linear damping were fitted, compares their held-out fold
 models block by block on several observables (no extra rollout: the round's own held-out frames):
 
 - ``all``: the scalar error on all frames of the blocks where either acts (the measure of rule 9, a head-to-head on it,
-  tried and removed: docs/residuals.md §7, "Friction taken for damping");
+  tried and removed: docs/residuals-findings.md, "Friction taken for damping");
 - ``pos`` / ``rot``: its position part |Δp| and rotation part ρ·∠ alone, on the same frames;
 - ``<mode>.pos`` / ``<mode>.rot``: restricted to the frames of one contact mode (sliding, robot_contact, rest).
 

@@ -1,4 +1,4 @@
-"""Diagnosis of restitution on strike sessions (docs/residuals.md §6, §7 "Restitution on strikes"). Reads ground truth:
+"""Diagnosis of restitution on strike sessions (docs/residuals.md §6, docs/residuals-findings.md "Restitution on strikes"). Reads ground truth:
 for diagnosis only, never part of the service.
 
     python benchmarks/strike_restitution.py phases [--speeds 0.35 0.45 0.6] [--phases 12]
@@ -14,7 +14,7 @@ the box's launch speed with e = 0.3 over the one with e = 0 (the physics: 1.3 fo
 phases (start gaps uniform over 5 mm, so the touch falls anywhere within a sub-step). Rows: the loop's simulator
 (``BulletSimulator``: sphere dragged along its path, 2 ms sub-steps) with Bullet's contact breaking threshold, with
 1 mm, and with 1 mm and the sub-step split at the touch (the e = 0 launch over v is printed too: the push-out of a
-contact that starts inside the object; the rows with a contact erp of 0.05 in docs/residuals.md §7, command P,
+contact that starts inside the object; the rows with a contact erp of 0.05 in docs/residuals-findings.md, command P,
 were made with the loop's ``contact_erp``, since removed), and a world with the synthetic lab's settings (240 Hz steps, Bullet's default restitution threshold 0.2 m/s and
 contact breaking 0.02 m, a free sphere moving at the strike speed).
 
@@ -23,7 +23,7 @@ settings, table, object, sphere, impedance law and strike command; 240 Hz): the 
 the launch with e over the one with e = 0 per contact phase, with the sphere-object contact solved from the touch on
 (``touch``: ``sim.STRIKE_TOUCH_PROCESSING_M``; off in the lab), from the touch on at the velocity level only
 (``velocity``: also ``sim.STRIKE_VELOCITY_ONLY``, no push-out of the overlap the contact starts with; off in the lab,
-docs/residuals.md §7 "The launch kick") or as Bullet makes it (``bullet``: every contact point solved, the lab's default),
+docs/residuals-findings.md "The launch kick") or as Bullet makes it (``bullet``: every contact point solved, the lab's default),
 each with Bullet's contact breaking threshold for the whole world as given
 (``--breaking``: a factor of each shape's bounding radius; ``off`` = Bullet's 0.02, the lab's). ``--height-frac`` strikes at that fraction of the box's height (the lab: 0.3) instead
 of through the CoM.
@@ -275,7 +275,7 @@ def blocks(args) -> None:
     from tests.residuals.synthlab import lab_session, perturbed_model
 
     grid = np.array([0.0, 0.1, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5])
-    if args.lab_strike_contact != "bullet":  # docs/residuals.md §7, "The synthetic lab's strikes", "The launch kick"
+    if args.lab_strike_contact != "bullet":  # docs/residuals-findings.md, "The synthetic lab's strikes", "The launch kick"
         from service.synth import sim as lab_sim
 
         if args.lab_strike_contact == "split":  # "A strike's contact that starts at the touch"

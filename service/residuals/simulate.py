@@ -123,13 +123,13 @@ class BulletSimulator:
         self.contact_breaking = None if contact_breaking_m is None else float(contact_breaking_m)
         # the object-table manifold re-made with this threshold at the object's first touch (None: off). Bullet drops a
         # manifold point once its witness points have moved apart along the surface by more than the threshold, so at
-        # 1 mm a body sliding at v h > 0.5 mm per sub-step holds about one point and sinks (docs/residuals.md §7,
+        # 1 mm a body sliding at v h > 0.5 mm per sub-step holds about one point and sinks (docs/residuals-findings.md,
         # "Resting contact at the contact breaking threshold"); the first touch is still made at contact_breaking_m
         self.contact_persist = None if contact_persist_m is None else float(contact_persist_m)
         self.sphere_drive = sphere_drive
         # a sub-step split at the time of impact of the robot sphere on the object (``service.sim.touch``; False: off):
         # the sphere's contact starts at the touch instead of up to v h inside, so Bullet's push-out adds nothing to a
-        # strike's launch, while a sustained contact keeps Bullet's law (docs/residuals.md §7, "A strike's contact
+        # strike's launch, while a sustained contact keeps Bullet's law (docs/residuals-findings.md, "A strike's contact
         # that starts at the touch")
         self.touch_split = bool(touch_split)
         self._hulls: dict = {}

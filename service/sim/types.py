@@ -14,7 +14,7 @@ import numpy as np
 # (> 1 /kg for objects under 1 kg). Bullet's split impulse (a position-only push-out) would be the usual remedy, but
 # its multibody solver, which pybullet's bodies use, does not implement it (measured: no effect, bit for bit). Used,
 # off by default, by the synthetic lab's strike sphere (``service.synth.sim.STRIKE_VELOCITY_ONLY``; the residual loop's
-# sphere had the same option, removed after it was measured: docs/residuals.md §7, "The launch kick").
+# sphere had the same option, removed after it was measured: docs/residuals-findings.md, "The launch kick").
 VELOCITY_ONLY_CONTACT: tuple[float, float] = (0.0, 1.0e6)
 
 

@@ -94,7 +94,7 @@ def test_contact_breaking_validated():
         ResidualConfig(contact_breaking_m=0.0)
     with pytest.raises(ValueError, match="contact_breaking_m"):
         BulletSimulator(0.002, contact_breaking_m=-1.0)
-    with pytest.raises(TypeError):  # removed options (docs/residuals.md §7, "The launch kick")
+    with pytest.raises(TypeError):  # removed options (docs/residuals-findings.md, "The launch kick")
         ResidualConfig(contact_erp=0.05)
     with pytest.raises(TypeError):
         ResidualConfig(sphere_velocity_only=True)
