@@ -4,7 +4,7 @@ reliably it recovers hidden effects in simulated tosses.
 Synthetic: cube tosses simulated with one hidden effect (0.15 mm tracking noise, 20 tosses), and a
 30 Hz pushing session with a hidden object-table friction; the loop starts from the base model. The tosses are made by
 tests/residuals/lab.py with its contact breaking threshold (1 mm, so that a declared restitution is the bounce the data
-show; ``--toss-contact-breaking off`` makes them as before, with Bullet's 0.02 m, docs/residuals.md §7).
+show; ``--toss-contact-breaking off`` makes them as before, with Bullet's 0.02 m, docs/residuals-findings.md).
 
 Real data: base model = the true-size cube (side 0.1048 m, mass 0.37 kg, μ 0.15, uniform-density
 inertia m s²/6), table at z = 0, no robot. Tosses are split into training and held-out tosses
@@ -94,8 +94,8 @@ def _config_json(text: str) -> dict:
     unknown = sorted(set(cfg) - {f.name for f in dataclasses.fields(ResidualConfig)})
     if unknown:
         raise argparse.ArgumentTypeError(f"not ResidualConfig fields: {', '.join(unknown)}")
-    clash = sorted(set(cfg) & {"contact_breaking_m", "contact_erp", "contact_persist_m", "restitution_threshold_mps", "candidates", "folds", "unit_statistic",
-                               "lookalike_check", "lookalike_refute", "max_train_segments", "fit_maxiter", "seed"})
+    clash = sorted(set(cfg) & {"contact_breaking_m", "contact_persist_m", "restitution_threshold_mps", "candidates", "folds", "unit_statistic",
+                               "lookalike_refute", "max_train_segments", "fit_maxiter", "seed"})
     if clash:
         raise argparse.ArgumentTypeError(f"set by the benchmark or its own flags, not by --config: {', '.join(clash)}")
     try:  # the config's own validation, so that a bad value is refused before any toss is made
@@ -119,18 +119,14 @@ def _refute_setting(args) -> dict:
 
 
 def _sim_settings(args) -> dict:
-    """``ResidualConfig.contact_breaking_m``, ``contact_erp`` and ``contact_persist_m`` from ``--contact-breaking`` /
-    ``--contact-erp`` / ``--contact-persist``
+    """``ResidualConfig.contact_breaking_m`` and ``contact_persist_m`` from ``--contact-breaking`` / ``--contact-persist``
     (absent: the config's default; 'off': None, Bullet's default)."""
     from service.residuals.types import ResidualConfig
 
     out = {}
-    for flag, field in (("contact_breaking", "contact_breaking_m"), ("contact_erp", "contact_erp"),
-                        ("contact_persist", "contact_persist_m")):
+    for flag, field in (("contact_breaking", "contact_breaking_m"), ("contact_persist", "contact_persist_m")):
         v = getattr(args, flag, None)
         out[field] = getattr(ResidualConfig, field) if v is None else (None if v == "off" else v)
-    if getattr(args, "sphere_velocity_only", False):  # no push-out of the sphere's overlap (off by default)
-        out["sphere_velocity_only"] = True
     if getattr(args, "touch_split", None) is not None:  # the sub-step split at the sphere's time of impact (on by default)
         out["touch_split"] = args.touch_split
     if getattr(args, "restitution_threshold", None) is not None:  # no bounce below this closing speed (default 0.05)
@@ -188,7 +184,7 @@ def real(args) -> None:
         seed=args.seed, candidates=tuple(args.candidates), max_train_segments=args.train_segments,
         max_heldout_segments=args.heldout_segments, fit_maxiter=args.fit_maxiter, max_effects=args.max_effects,
         unit_statistic=args.unit_statistic, folds=args.folds,
-        lookalike_check=args.lookalike_check, **_refute_setting(args), **_sim_settings(args),
+        **_refute_setting(args), **_sim_settings(args),
     )
     t0 = time.time()
     out = run(ResidualInputs(cube_model(), trajs, 0.0), cfg,
@@ -214,7 +210,7 @@ def synthetic(args) -> None:
     cands = ("gravity_scale", "restitution", "table_offset", "linear_damping", "angular_damping")
     # 12 training blocks and 24 evaluations per fit, as tests/residuals/test_recover_angular_damping.py
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, max_train_segments=12, fit_maxiter=24,
-                              unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check, **_refute_setting(args),
+                              unit_statistic=args.unit_statistic, folds=args.folds, **_refute_setting(args),
                               **_sim_settings(args), **args.config)
     import resource
 
@@ -274,7 +270,7 @@ def synthetic(args) -> None:
         tr, path = push_session(base, {"friction_object_table": 0.5}, seed=seed, noise_m=3e-4, strokes=12)
         pcfg = dataclasses.replace(ResidualConfig.fast(), candidates=("friction_table", "clock_offset", "restitution"),
                                    segment_s=0.5, seed=seed, unit_statistic=args.unit_statistic, folds=args.folds,
-                                   lookalike_check=args.lookalike_check, **_refute_setting(args), **_sim_settings(args))
+                                   **_refute_setting(args), **_sim_settings(args))
         out = run(ResidualInputs(base, (tr,), 0.0, robot=(path,)), pcfg)
         c = {c.effect: c for c in out.candidates}["friction_table"]
         print(f"pushing, hidden friction_object_table 0.5, seed {seed}: accepted {list(out.accepted)}; "
@@ -306,7 +302,7 @@ def lab(args) -> None:
     cands = ("clock_offset", "friction_table", "table_tilt", "linear_damping", "restitution")
     cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, max_train_segments=10,
                               nuisance=() if args.exact_model else NUISANCE_LEARNED, unit_statistic=args.unit_statistic,
-                              folds=args.folds, lookalike_check=args.lookalike_check, **_refute_setting(args), **_sim_settings(args))
+                              folds=args.folds, **_refute_setting(args), **_sim_settings(args))
     for case in args.cases:
         hidden, name, key = LAB_CASES[case]
         for seed in args.seeds:
@@ -380,10 +376,10 @@ def _print_fold_agreement(out) -> None:
 
 
 def _print_lookalikes(out) -> None:
-    """Rules 9 and 9b (docs/residuals.md §4): every round's verdict between look-alikes (printed only when a rule ran)."""
+    """Rule 9b (docs/residuals.md §4): every round's verdict between look-alikes (printed only when the rule ran)."""
     for h in out.by_mode.get("rounds", []):
         for p in (p.strip() for p in h.get("reason", "").split(";")):
-            if "look-alike" in p and ("rejected" in p or "not refuted" in p or "beats its" in p):
+            if "look-alike" in p and ("rejected" in p or "not refuted" in p):
                 print(f"    round {h['round']} {h['effect']:16s} {p}", flush=True)
                 break
 
@@ -463,11 +459,11 @@ def strike(args) -> None:
         lab_sim.STRIKE_TOUCH_SPLIT = False  # 'bullet': every sphere-object contact point as Bullet makes it
         if args.lab_strike_contact == "bullet":
             pass
-        elif args.lab_strike_contact == "split":  # the step split at the time of impact (§7, "A strike's contact ...")
+        elif args.lab_strike_contact == "split":  # the step split at the time of impact (docs/residuals-findings.md, "A strike's contact ...")
             lab_sim.STRIKE_TOUCH_SPLIT = True
         else:
             lab_sim.STRIKE_CONTACT_PROCESSING_M = lab_sim.STRIKE_TOUCH_PROCESSING_M  # solved from the touch on
-        if args.lab_strike_contact == "velocity":  # and no push-out of its overlap (docs/residuals.md §7, "The launch kick")
+        if args.lab_strike_contact == "velocity":  # and no push-out of its overlap (docs/residuals-findings.md, "The launch kick")
             lab_sim.STRIKE_CONTACT_STIFFNESS_DAMPING = lab_sim.STRIKE_VELOCITY_ONLY
     n_ok = n = 0
     for case in args.cases:
@@ -485,7 +481,7 @@ def strike(args) -> None:
             cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, seed=seed,
                                       fit_maxiter=24, max_train_segments=10,
                                       nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
-                                      unit_statistic=args.unit_statistic, folds=args.folds, lookalike_check=args.lookalike_check, **_refute_setting(args), **_sim_settings(args),
+                                      unit_statistic=args.unit_statistic, folds=args.folds, **_refute_setting(args), **_sim_settings(args),
                                       **_path_settings(args))
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
@@ -588,7 +584,7 @@ def main() -> None:
                    help='JSON of ResidualConfig fields for the toss cases, e.g. \'{"init_fit_frames_flight": 41}\'')
     s.add_argument("--toss-contact-breaking", default=None, metavar="M", type=off_or_float,
                    help="contact breaking threshold of the toss generator (tests/residuals/lab.py) in m, or 'off' for "
-                        "Bullet's 0.02 m (the generator before docs/residuals.md §7 'The toss generator's bounce'); "
+                        "Bullet's 0.02 m (the generator before docs/residuals-findings.md 'The toss generator's bounce'); "
                         "default: the generator's default, 1 mm")
     lb = sub.add_parser("lab")
     lb.add_argument("--seeds", type=int, nargs="+", default=[601, 602])
@@ -605,7 +601,7 @@ def main() -> None:
     st.add_argument("--mu", type=float, default=0.15)
     st.add_argument("--physics-hz", type=float, default=None,
                     help="the lab's physics rate in Hz (SynthSpec.physics_hz, a multiple of the 30 Hz frame rate; "
-                         "default: the spec's, 240); docs/residuals.md §7 'Angular damping on strikes'")
+                         "default: the spec's, 240); docs/residuals-findings.md 'Angular damping on strikes'")
     st.add_argument("--candidates", nargs="+", default=None,
                     help="candidate effects for every case (default: each case's own: its effect and two look-alikes)")
     st.add_argument("--pose-noise", type=float, default=5e-4,
@@ -621,7 +617,7 @@ def main() -> None:
                          "docs/residuals.md §6): lead or inverse (the constraint's update inverted, the config's default)")
     st.add_argument("--robot-smooth-weights", choices=("box", "biweight"), default=None,
                     help="weights of the local quadratic fit that smooths the measured sphere path "
-                         "(ResidualConfig.robot_smooth_weights, docs/residuals.md §7): box (Savitzky-Golay) or biweight (the "
+                         "(ResidualConfig.robot_smooth_weights, docs/residuals-findings.md): box (Savitzky-Golay) or biweight (the "
                          "config's default); the former defaults: --sphere-drive lead --robot-smooth-weights box "
                          "--robot-smooth 0.04")
     st.add_argument("--robot-smooth", type=float, default=None, metavar="S",
@@ -632,7 +628,7 @@ def main() -> None:
                          "on ('touch': service.synth.sim.STRIKE_TOUCH_PROCESSING_M; the bounces kept, launches up to 7 "
                          "%% fast), or also at the velocity level only ('velocity': no push-out of the overlap, "
                          "sim.STRIKE_VELOCITY_ONLY), or with the step split at the time of impact ('split': "
-                         "sim.STRIKE_TOUCH_SPLIT, the contact starting at the touch); docs/residuals.md §7")
+                         "sim.STRIKE_TOUCH_SPLIT, the contact starting at the touch); docs/residuals-findings.md")
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
     for sp in (r, s, lb, st):
@@ -644,9 +640,6 @@ def main() -> None:
                         help="held-out test by K-fold cross-fitting (docs/residuals.md §4): 1 = one seeded split "
                              "(half the units held out; this benchmark's default), K >= 2 = every unit held out once, "
                              "rules on the union (the service's default is 2)")
-        sp.add_argument("--lookalike-check", action="store_true",
-                        help="rule 9 (docs/residuals.md §4): a passing candidate must beat each look-alike effect "
-                             "fitted in the same round (table friction against linear damping) on held-out blocks")
         sp.add_argument("--lookalike-refute", choices=("on", "off"), default=None,
                         help="rule 9b (docs/residuals.md §4): a passing candidate is rejected when a look-alike fitted "
                              "in the same round predicts the held-out position better (ResidualConfig.lookalike_refute; "
@@ -654,23 +647,17 @@ def main() -> None:
         sp.add_argument("--contact-breaking", default=None, metavar="M", type=off_or_float,
                         help="contact breaking threshold of the loop's simulator in m, or 'off' for Bullet's 0.02 m "
                              "(ResidualConfig.contact_breaking_m, docs/residuals.md §6); default: the config's default")
-        sp.add_argument("--contact-erp", default=None, metavar="F", type=off_or_float,
-                        help="fraction of a contact's penetration the loop's simulator pushes out per sub-step, or 'off' "
-                             "for Bullet's default (ResidualConfig.contact_erp, docs/residuals.md §6)")
-        sp.add_argument("--sphere-velocity-only", action="store_true",
-                        help="the robot sphere's contact solved at the velocity level only (ResidualConfig."
-                             "sphere_velocity_only, off by default; docs/residuals.md §7 'The launch kick')")
         sp.add_argument("--touch-split", action=argparse.BooleanOptionalAction, default=None,
                         help="the loop's sub-step split at the robot sphere's time of impact (ResidualConfig.touch_split, "
-                             "on by default; --no-touch-split: off; docs/residuals.md §7 'A strike's contact that starts "
+                             "on by default; --no-touch-split: off; docs/residuals-findings.md 'A strike's contact that starts "
                              "at the touch')")
         sp.add_argument("--contact-persist", default=None, metavar="M", type=off_or_float,
                         help="threshold of the object-table manifold re-made at the first touch in m, or 'off' "
-                             "(ResidualConfig.contact_persist_m, docs/residuals.md §7 'Resting contact ...')")
+                             "(ResidualConfig.contact_persist_m, docs/residuals-findings.md 'Resting contact ...')")
         sp.add_argument("--restitution-threshold", default=None, metavar="V", type=float,
                         help="relative normal speed in m/s below which the loop's simulator gives a contact no bounce "
                              "(ResidualConfig.restitution_threshold_mps; default: the config's, 0.05; the synthetic "
-                             "lab keeps Bullet's 0.2; docs/residuals.md §7 'Restitution on strikes as a test')")
+                             "lab keeps Bullet's 0.2; docs/residuals-findings.md 'Restitution on strikes as a test')")
     args = ap.parse_args()
     # refused before any session is made (naming the flag), not by a traceback from the loop's config
     if args.folds < 1:
@@ -684,8 +671,8 @@ def main() -> None:
     # the simulator flags' values checked by the config's own validation (range, NaN), each naming its flag
     from service.residuals.types import ResidualConfig
 
-    for flag, field in (("contact_breaking", "contact_breaking_m"), ("contact_erp", "contact_erp"),
-                        ("contact_persist", "contact_persist_m"), ("toss_contact_breaking", "contact_breaking_m")):
+    for flag, field in (("contact_breaking", "contact_breaking_m"), ("contact_persist", "contact_persist_m"),
+                        ("toss_contact_breaking", "contact_breaking_m")):
         v = getattr(args, flag, None)
         if v is not None and v != "off":
             try:

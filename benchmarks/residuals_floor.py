@@ -17,14 +17,14 @@ value ("after", the floor), from start states and against poses mixed from estim
 ``true`` against ``clean`` is the simulator/time-step mismatch (the rollout is the loop's simulator with the config's
 settings, ``simulate.simulator_for``, from the same state; the tosses are generated at the generator's contact breaking
 threshold, 1 mm); ``true`` against ``obs`` the pose noise of the compared frames; the rows between split the
-start-state part. The figures of docs/residuals.md §7 "The floor the right model keeps" were made with the rollouts at
+start-state part. The figures of docs/residuals-findings.md "The floor the right model keeps" were made with the rollouts at
 Bullet's 0.02 m, before the loop's default became 1 mm: ``--config '{"contact_breaking_m": null}'`` replays so.
 
     python benchmarks/residuals_floor.py --seeds 39 40 [--cases angular_damping restitution ...]
         [--config '{"init_fit_frames_flight": 41}']   (ResidualConfig fields: the loop's start state to diagnose)
 
-With ``flight_start_model`` the loop's start of a flight block is the one fitted with the true model (and each of
-"before" / "after" rolls out from its own); the rows with a true part are then mixed with the model-free quadratic.
+(The per-model flight start, ``flight_start_model``, that the third command of the findings' AC ran with, was removed from the
+loop after it was measured: docs/residuals-findings.md, "The floor the right model keeps".)
 """
 
 from __future__ import annotations
@@ -123,10 +123,10 @@ def diagnose(case: str, seed: int, cfg, start_state=None) -> dict:
     for s in segs:
         X, V, W = truth[s.traj]
         variants.setdefault("est", []).append(s)
-        variants.setdefault("Xtrue", []).append(dataclasses.replace(s, fit=None, X0=X[s.start]))
-        variants.setdefault("vtrue", []).append(dataclasses.replace(s, fit=None, v0=V[s.start]))
-        variants.setdefault("wtrue", []).append(dataclasses.replace(s, fit=None, w0=W[s.start]))
-        variants.setdefault("true", []).append(dataclasses.replace(s, fit=None, X0=X[s.start], v0=V[s.start], w0=W[s.start]))
+        variants.setdefault("Xtrue", []).append(dataclasses.replace(s, X0=X[s.start]))
+        variants.setdefault("vtrue", []).append(dataclasses.replace(s, v0=V[s.start]))
+        variants.setdefault("wtrue", []).append(dataclasses.replace(s, w0=W[s.start]))
+        variants.setdefault("true", []).append(dataclasses.replace(s, X0=X[s.start], v0=V[s.start], w0=W[s.start]))
     clean = {name: [dataclasses.replace(s, X_obs=truth[s.traj][0][s.start:s.stop]) for s in ss] for name, ss in variants.items()}
     from service.residuals.types import MODES
 
@@ -153,15 +153,11 @@ def diagnose(case: str, seed: int, cfg, start_state=None) -> dict:
                             out[(against, name, label, g)] = {
                                 c: float(np.nanmean(reduce_blocks(fr, masks, c)[gm])) for c in ("position", "rotation", "both")}
         # start-state errors of the loop's estimate (rms over blocks where the effect acts)
-        from service.residuals.loop import flight_start_state
-
-        starts = [(s.X0, s.v0, s.w0) if s.fit is None else flight_start_state(*s.fit, m1, e1) for s in segs]
-        segs = [dataclasses.replace(s, X0=X0, v0=v0, w0=w0) for s, (X0, v0, w0) in zip(segs, starts)]
         dX = [np.linalg.norm(s.X0[:3, 3] - truth[s.traj][0][s.start, :3, 3]) for s in segs]
         dR = [float(rotation_angle(s.X0[:3, :3].T @ truth[s.traj][0][s.start, :3, :3])) for s in segs]
         dv = [np.linalg.norm(s.v0 - truth[s.traj][1][s.start]) for s in segs]
         dw = [np.linalg.norm(s.w0 - truth[s.traj][2][s.start]) for s in segs]
-        out["start"] = {"flight_blocks_model_fit": sum(s.fit is not None for s in segs), "pos_mm": 1e3 * float(np.sqrt(np.mean(np.square(dX)))), "rot_mrad": 1e3 * float(np.sqrt(np.mean(np.square(dR)))),
+        out["start"] = {"pos_mm": 1e3 * float(np.sqrt(np.mean(np.square(dX)))), "rot_mrad": 1e3 * float(np.sqrt(np.mean(np.square(dR)))),
                         "v_mm_s": 1e3 * float(np.sqrt(np.mean(np.square(dv)))), "w_rad_s": float(np.sqrt(np.mean(np.square(dw))))}
     finally:
         sim.close()
@@ -190,7 +186,7 @@ def main() -> None:
         for seed in args.seeds:
             d = diagnose(case, seed, cfg)
             st = d["start"]
-            print(f"{case} seed {seed}: {d['blocks']} blocks where it acts ({st['flight_blocks_model_fit']} with the per-model flight fit); component {comp}; start-state rms errors (true model) "
+            print(f"{case} seed {seed}: {d['blocks']} blocks where it acts; component {comp}; start-state rms errors (true model) "
                   f"pos {st['pos_mm']:.3f} mm, rot {st['rot_mrad']:.2f} mrad, v {st['v_mm_s']:.1f} mm/s, w {st['w_rad_s']:.3f} rad/s")
             for against in ("obs", "clean"):
                 for name in ("est", "Xtrue", "vtrue", "wtrue", "true"):

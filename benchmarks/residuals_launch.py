@@ -1,4 +1,4 @@
-"""Diagnosis of the strike replay (docs/residuals.md §7, "Linear damping fitted low on strikes"): how fast the
+"""Diagnosis of the strike replay (docs/residuals-findings.md, "Linear damping fitted low on strikes"): how fast the
 rollouts launch a struck object against the lab, and where the damping's training loss has its minimum.
 
 Ground truth is read here only (the hidden damping, noise-free poses and robot path); nothing of it reaches the
@@ -19,7 +19,7 @@ model, declared friction 0.15 (the true one unless ``--mu``).
         the velocity noise its sample-to-sample increments keep, and per strike the launch a kinematic sphere on it
         would hand a free 1-D object (pushed whenever the sphere reaches it, sliding with mu g = 1.47 m/s² otherwise)
 The subcommands' defaults are the loop's former replay settings (the lead drive, Savitzky-Golay over 0.04 s), the ones
-this script's figures were made with; the loop's defaults now (docs/residuals.md §7, "The split and the inverse drive
+this script's figures were made with; the loop's defaults now (docs/residuals-findings.md, "The split and the inverse drive
 together"): --drive inverse --smooth-weights biweight --smooth 0.08. The rollouts are the loop's simulator (``simulate.simulator_for``) with its contact breaking threshold
 (1 mm by default) unless ``--contact-breaking M|off``; the figures of "Linear damping fitted low on strikes" were made
 before 1 mm became the default, with Bullet's 0.02 m: ``--contact-breaking off`` replays so.

@@ -1,15 +1,17 @@
-"""Diagnosis of the friction–damping look-alike on strikes (docs/residuals.md §7, "Friction and damping told apart").
+"""Diagnosis of the friction–damping look-alike on strikes (docs/residuals-findings.md, "Friction and damping told apart").
 
 Runs the loop on synthetic-lab strike sessions (the strike benchmark's settings: catalogue model, 2 folds) and, for
 every round in which both the table friction and the linear damping were fitted, compares their held-out fold
 models block by block on several observables (no extra rollout: the round's own held-out frames):
 
-- ``all``: the scalar error on all frames of the blocks where either acts (rule 9's measure);
+- ``all``: the scalar error on all frames of the blocks where either acts (the measure of rule 9, a head-to-head on it,
+  tried and removed: docs/residuals-findings.md, "Friction taken for damping");
 - ``pos`` / ``rot``: its position part |Δp| and rotation part ρ·∠ alone, on the same frames;
 - ``<mode>.pos`` / ``<mode>.rot``: restricted to the frames of one contact mode (sliding, robot_contact, rest).
 
-The decisions of the loop are the ones without rule 9 (the rule's hook is replaced by a recorder that leaves the
-round as it is). Ground truth is read only to name the case.
+The decisions of the loop are the ones without any look-alike rule (the hook of rule 9b, ``crossfit.lookalike_refutation``,
+is replaced by a recorder that computes the rule's verdict and leaves the round as it is). Ground truth is read only to
+name the case.
 
     python benchmarks/residuals_lookalike.py --seeds 741 742 --cases linear_damping friction [--sphere-drive inverse
         --robot-smooth-weights biweight --robot-smooth 0.08] [--save /tmp/x.pkl]
@@ -31,9 +33,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 OBS_MODES = ("sliding", "robot_contact", "rest")
 
 
-def _record(store: list):
-    """A stand-in for ``crossfit.lookalike_rule`` that records the round and changes nothing."""
-    from service.residuals import crossfit as cf
+def _record(store: list, refutation):
+    """A stand-in for ``crossfit.lookalike_refutation`` (the rule itself: ``refutation``) that records the round and
+    the rule's verdict and changes nothing."""
 
     def rule(round_res, folds, cfg, final, history, rnd):
         names = {r[2].effect: r for r in round_res}
@@ -47,7 +49,7 @@ def _record(store: list):
                 rec["passes"][n] = bool(ok)
                 rec["theta"][n] = [tuple(p["theta"]) for p in per]
                 rec["after"][n] = [list(p["after_frames"]) for p in per]
-            refuted = cf.lookalike_refutation(round_res, folds, cfg, {}, [], rnd)  # rule 9b's verdict, not applied
+            refuted = refutation(round_res, folds, cfg, {}, [], rnd)  # rule 9b's verdict, not applied
             rec["refuted"] = [r[2].effect for r0, r in zip(round_res, refuted) if r0[0] and not r[0]]
             store.append(rec)
         return round_res
@@ -138,14 +140,14 @@ def main() -> None:
                                           ("robot_smooth_s", args.robot_smooth)) if v is not None}
                 cfg = dataclasses.replace(ResidualConfig.fast(), candidates=cands, segment_s=0.3, seed=seed,
                                           fit_maxiter=24, max_train_segments=10, nuisance=(), nuisance_maxiter=70,
-                                          folds=args.folds, lookalike_check=True, lookalike_refute=False, **path)
+                                          folds=args.folds, lookalike_refute=True, **path)
                 store: list = []
-                orig = cf.lookalike_rule
-                cf.lookalike_rule = _record(store)
+                orig = cf.lookalike_refutation
+                cf.lookalike_refutation = _record(store, orig)
                 try:
                     out = run(ResidualInputs(perturbed_model(ls), (ls.trajectory,), ls.table_height, robot=(ls.robot,)), cfg)
                 finally:
-                    cf.lookalike_rule = orig
+                    cf.lookalike_refutation = orig
                 results.append({"case": case, "seed": seed, "accepted": list(out.accepted), "effects": dict(out.effects),
                                 "recs": store, "cfg": cfg})
                 print(f"{case} {seed}: accepted {list(out.accepted)} {out.effects}", flush=True)

@@ -19,7 +19,7 @@ linear_damping, table_tilt, clock_offset, com_offset).
 one or two strokes, too few held-out blocks in robot contact for any test.
 
 ``--diagnose`` replays with the loop's default simulator (``simulate.simulator_for``: the contact breaking threshold of
-1 mm since it became the default; the diagnosis figures of docs/residuals.md §7 made before then used Bullet's 0.02 m).
+1 mm since it became the default; the diagnosis figures of docs/residuals-findings.md made before then used Bullet's 0.02 m).
 """
 
 from __future__ import annotations

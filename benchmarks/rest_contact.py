@@ -1,4 +1,4 @@
-"""Diagnosis of resting contact in the loop's simulator (docs/residuals.md §7, "Resting contact at the contact breaking
+"""Diagnosis of resting contact in the loop's simulator (docs/residuals-findings.md, "Resting contact at the contact breaking
 threshold"): the cube placed at rest on the table, rolled out for 2 s per contact breaking threshold and collision margin.
 
     python benchmarks/rest_contact.py [--thresholds 0.0005 0.001 0.002 0.005 off] [--margins 0 0.001 0.004]

@@ -1,9 +1,9 @@
-"""Diagnosis of restitution on strike sessions (docs/residuals.md §6, §7 "Restitution on strikes"). Reads ground truth:
+"""Diagnosis of restitution on strike sessions (docs/residuals.md §6, docs/residuals-findings.md "Restitution on strikes"). Reads ground truth:
 for diagnosis only, never part of the service.
 
     python benchmarks/strike_restitution.py phases [--speeds 0.35 0.45 0.6] [--phases 12]
     python benchmarks/strike_restitution.py blocks --seeds 666 667 [--pose-noise 0] [--contact-breaking off 0.001]
-        [--contact-erp 0.05] [--lab-strike-contact touch|velocity|split|bullet] [--touch-split]
+        [--lab-strike-contact touch|velocity|split|bullet] [--touch-split]
     python benchmarks/strike_restitution.py lab [--speeds 0.4 0.55 0.7] [--phases 12] [--restitutions 0.1 0.3 0.5]
         [--sphere-contact bullet touch velocity split] [--breaking off 0.005 0.002 0.001] [--mu 0] [--height-frac F]
         [--reference 16]
@@ -13,8 +13,9 @@ for diagnosis only, never part of the service.
 the box's launch speed with e = 0.3 over the one with e = 0 (the physics: 1.3 for a heavy striker) over contact
 phases (start gaps uniform over 5 mm, so the touch falls anywhere within a sub-step). Rows: the loop's simulator
 (``BulletSimulator``: sphere dragged along its path, 2 ms sub-steps) with Bullet's contact breaking threshold, with
-1 mm, and with 1 mm and a contact erp of 0.05 (the e = 0 launch over v is printed too: the push-out of a contact that
-starts inside the object), and a world with the synthetic lab's settings (240 Hz steps, Bullet's default restitution threshold 0.2 m/s and
+1 mm, and with 1 mm and the sub-step split at the touch (the e = 0 launch over v is printed too: the push-out of a
+contact that starts inside the object; the rows with a contact erp of 0.05 in docs/residuals-findings.md, command P,
+were made with the loop's ``contact_erp``, since removed), and a world with the synthetic lab's settings (240 Hz steps, Bullet's default restitution threshold 0.2 m/s and
 contact breaking 0.02 m, a free sphere moving at the strike speed).
 
 ``lab``: the same strike in the synthetic lab's own world (``tests/synth/strike_lab.py``: ``service.synth.sim``'s engine
@@ -22,7 +23,7 @@ settings, table, object, sphere, impedance law and strike command; 240 Hz): the 
 the launch with e over the one with e = 0 per contact phase, with the sphere-object contact solved from the touch on
 (``touch``: ``sim.STRIKE_TOUCH_PROCESSING_M``; off in the lab), from the touch on at the velocity level only
 (``velocity``: also ``sim.STRIKE_VELOCITY_ONLY``, no push-out of the overlap the contact starts with; off in the lab,
-docs/residuals.md §7 "The launch kick") or as Bullet makes it (``bullet``: every contact point solved, the lab's default),
+docs/residuals-findings.md "The launch kick") or as Bullet makes it (``bullet``: every contact point solved, the lab's default),
 each with Bullet's contact breaking threshold for the whole world as given
 (``--breaking``: a factor of each shape's bounding radius; ``off`` = Bullet's 0.02, the lab's). ``--height-frac`` strikes at that fraction of the box's height (the lab: 0.3) instead
 of through the CoM.
@@ -116,16 +117,14 @@ def phases(args) -> None:
     for v in args.speeds:
         rows = [("lab settings (4.17 ms, restitution threshold 0.2 m/s, contact breaking 0.02 m)", None, None)]
         rows += [(f"loop's simulator, contact breaking {'0.02 m (Bullet)' if cb is None else f'{cb * 1e3:g} mm'}, contact "
-                  f"erp {'Bullet' if erp is None else erp}", cb, erp) for cb, erp in ((None, None), (0.001, None), (0.001, 0.05))]
+                  "erp Bullet", cb, None) for cb in (None, 0.001)]
         rows += [("loop's simulator, contact breaking 1 mm, sub-step split at the touch (touch_split)", 0.001, "split")]
         for name, cb, erp in rows:
             if name.startswith("lab"):
                 l0 = np.array([_lab_like_launch(v, 0.0, g) for g in gaps])
                 q = np.array([_lab_like_launch(v, E_TRUE, g) for g in gaps]) / l0
             else:
-                split = erp == "split"
-                erp = None if split else erp
-                with BulletSimulator(0.002, contact_breaking_m=cb, contact_erp=erp, touch_split=split) as sim:
+                with BulletSimulator(0.002, contact_breaking_m=cb, touch_split=erp == "split") as sim:
                     l0 = np.array([_loop_launch(sim, v, 0.0, g) for g in gaps])
                     q = np.array([_loop_launch(sim, v, E_TRUE, g) for g in gaps]) / l0
             print(f"v {v:.2f} m/s, {name}: launch(e=0.3)/launch(e=0) mean {q.mean():.3f}, bounce lost (< 1.1) in "
@@ -276,7 +275,7 @@ def blocks(args) -> None:
     from tests.residuals.synthlab import lab_session, perturbed_model
 
     grid = np.array([0.0, 0.1, 0.2, 0.25, 0.3, 0.35, 0.4, 0.5])
-    if args.lab_strike_contact != "bullet":  # docs/residuals.md §7, "The synthetic lab's strikes", "The launch kick"
+    if args.lab_strike_contact != "bullet":  # docs/residuals-findings.md, "The synthetic lab's strikes", "The launch kick"
         from service.synth import sim as lab_sim
 
         if args.lab_strike_contact == "split":  # "A strike's contact that starts at the touch"
@@ -300,15 +299,12 @@ def blocks(args) -> None:
         S, M = [segs[i] for i in keep], [masks[i] for i in keep]
         for cb in args.contact_breaking:
             cbv = None if cb == "off" else float(cb)
-            erp = None if cbv is None or args.contact_erp == "off" else float(args.contact_erp)
-            with BulletSimulator(cfg.sim_substep_s, contact_breaking_m=cbv, contact_erp=erp,
-                                 touch_split=args.touch_split) as sim:
+            with BulletSimulator(cfg.sim_substep_s, contact_breaking_m=cbv, touch_split=args.touch_split) as sim:
                 ev = Evaluator(sim, ls.table_height, object_radius(model))
                 E = np.array([reduce_blocks(ev.frame_scalar(model, {"restitution": e}, S), M) for e in grid]) * 1e3
             i3 = int(np.flatnonzero(grid == E_TRUE)[0])
             best = grid[np.argmin(E, 0)]
-            print(f"seed {seed}, pose noise {args.pose_noise * 1e3:g} mm, contact breaking {cb}, contact erp "
-                  f"{'Bullet' if erp is None else erp}: {len(S)} blocks where "
+            print(f"seed {seed}, pose noise {args.pose_noise * 1e3:g} mm, contact breaking {cb}: {len(S)} blocks where "
                   f"restitution acts; block error e=0 {E[0].mean():.2f} mm (median {np.median(E[0]):.2f}), true e "
                   f"{E[i3].mean():.2f} mm (median {np.median(E[i3]):.2f}), true/e=0 {E[i3].mean() / E[0].mean():.2f}, "
                   f"better/worse {int((E[i3] < E[0]).sum())}/{int((E[i3] > E[0]).sum())}; each block's best e in the "
@@ -317,7 +313,7 @@ def blocks(args) -> None:
 
 
 def main() -> None:
-    from _overrides import nonnegative_float, off_or_positive, off_or_unit, positive_float, positive_int, unit_float
+    from _overrides import nonnegative_float, off_or_positive, positive_float, positive_int, unit_float
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
@@ -329,7 +325,6 @@ def main() -> None:
     bl.add_argument("--seeds", type=int, nargs="+", default=[666, 667])
     bl.add_argument("--pose-noise", type=nonnegative_float, default=0.0)
     bl.add_argument("--contact-breaking", type=off_or_positive, nargs="+", default=["off", 0.001])
-    bl.add_argument("--contact-erp", type=off_or_unit, default="off", help="contact erp with a contact breaking threshold set ('off': Bullet's)")
     bl.add_argument("--lab-strike-contact", choices=("touch", "velocity", "split", "bullet"), default="bullet",
                     help="the lab's sphere-object contact: from the touch on, from the touch on at the velocity level "
                          "only (no push-out of the overlap), or as Bullet makes it (the lab's default)")

@@ -1,4 +1,4 @@
-"""Diagnosis of the angular damping fitted high on strikes (docs/residuals.md §7, "Angular damping on strikes: where
+"""Diagnosis of the angular damping fitted high on strikes (docs/residuals-findings.md, "Angular damping on strikes: where
 the fit's excess comes from"): the damping law of the lab and of the loop's replay, the spin a struck box keeps in the
 lab and in the replay, and where the damping's training loss has its minimum.
 

@@ -1,4 +1,4 @@
-"""Diagnosis of the toss generator's bounce (docs/residuals.md §7, "The toss generator's bounce"). Reads the declared
+"""Diagnosis of the toss generator's bounce (docs/residuals-findings.md, "The toss generator's bounce"). Reads the declared
 restitution of the generated data: for diagnosis only, never part of the service.
 
     python benchmarks/toss_restitution.py drops [--speeds 1.0 1.5 2.0] [--phases 12] [--contact-breaking off 0.005 0.002 0.001]

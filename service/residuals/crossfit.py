@@ -139,32 +139,6 @@ def agreement_rule(ok: bool, why: str, eff, thetas, model: ObjectModel) -> tuple
     return ok, f"{why}; fold agreement: {txt}"
 
 
-def lookalike_rule(round_res: list[tuple], folds: list, cfg: ResidualConfig, final: dict, history: list,
-                   rnd: int) -> list[tuple]:
-    """Rule 9 (§4, ``ResidualConfig.lookalike_check``): a candidate A that passes rules 1–8 in this round stays
-    passing only if its held-out predictions beat those of every look-alike B (``Effect.lookalikes``) fitted in the
-    same round (B need not pass): on the held-out blocks of every fold where A or B acts, the mean error over all
-    the block's frames (a launch block's rest frames hold where the slide stopped, the consequence that tells a
-    friction from a damping), with A's fold models against B's (``loop.head_to_head``: rules 2 and 3, B in place
-    of "before"). Two effects that explain the same residual equally well are then neither accepted: the data do
-    not say which. ``round_res`` entries are (passes, all-frame fall, candidate, per-fold figures, θ̄); the
-    rejected ones are returned with passes False, and their reasons in ``final`` and ``history`` say why."""
-    from service.residuals.loop import head_to_head
-
-    rng = np.random.default_rng(cfg.seed + 9001)  # its own stream: the main loop's draws stay as they were
-
-    def judge(cand, ea, other, per, per_b):
-        e_a, e_b, u = _lookalike_blocks(per, per_b, folds, ea, REGISTRY[other], "both")
-        better, txt = head_to_head(e_b, e_a, u, cfg, rng) if len(e_a) >= 2 else (
-            False, f"{len(e_a)} held-out block(s) to compare")
-        if not better:
-            return False, (f"rejected: does not predict the held-out blocks better than its look-alike {other} "
-                           f"({txt}); " + cand.reason.removeprefix("passes; "))
-        return True, f"{cand.reason}; beats its look-alike {other} ({txt})"
-
-    return _judge_lookalikes(round_res, final, history, rnd, judge)
-
-
 def _judge_lookalikes(round_res: list[tuple], final: dict, history: list, rnd: int, judge) -> list[tuple]:
     """Every passing candidate of ``round_res`` against each of its look-alikes fitted in the same round, in order:
     ``judge(cand, its Effect, look-alike name, its per-fold figures, the look-alike's)`` returns (still passing, new
@@ -450,8 +424,6 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
             round_res.append((ok, float(all_before.mean() - all_after.mean()), cand, per, theta_rep))
             final[name] = cand
             history.append(history_entry(rnd, cand, ok, **({"folds": per_fold} if kfold else {})))
-        if cfg.lookalike_check:
-            round_res = lookalike_rule(round_res, folds, cfg, final, history, rnd)
         if cfg.lookalike_refute:
             round_res = lookalike_refutation(round_res, folds, cfg, final, history, rnd)
         best = accept_best(round_res, final)

@@ -59,10 +59,8 @@ class Effect:
     directional: bool = False
     # effects that can explain the same residual (a slide's deceleration: Coulomb friction raised by Δμ and a viscous
     # damping b remove the same energy from a slide launched at v₀ when Δμ ≈ (2/3)·b·v₀/g): with
-    # ``ResidualConfig.lookalike_check`` a passing candidate is accepted only if it predicts the held-out blocks
-    # better than each of its look-alikes fitted in the same round (crossfit.lookalike_rule); with
-    # ``ResidualConfig.lookalike_refute`` it is rejected when a look-alike predicts the held-out error component both
-    # act on better (crossfit.lookalike_refutation)
+    # ``ResidualConfig.lookalike_refute`` a passing candidate is rejected when a look-alike predicts the held-out error
+    # component both act on better (crossfit.lookalike_refutation)
     lookalikes: tuple[str, ...] = ()
     # the component of the rollout error it acts on (docs/residuals.md §1, "Error where an effect acts"):
     # "position" (a force through the centre of mass: gravity, tilt, table height, linear damping), "rotation" (a

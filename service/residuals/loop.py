@@ -105,10 +105,6 @@ class Segment:
     v0: np.ndarray  # (3,)
     w0: np.ndarray  # (3,)
     robot: RobotPath | None
-    # a start in free flight with ``ResidualConfig.flight_start_model``: the fit window (t (k,), X_WO (k,4,4), index of
-    # the start frame in it, simulator step h); the start state is then fitted per model (``flight_start_state``) and
-    # X0, v0, w0 above are the model-free quadratic's (reported, and used by nothing that rolls out)
-    fit: tuple | None = None
 
 
 def local_quadratic(p: np.ndarray, half: int) -> np.ndarray:
@@ -213,71 +209,6 @@ def start_state(t: np.ndarray, X: np.ndarray, at: int, h: float) -> tuple[np.nda
     acc_r = cr[2] if len(cr) > 2 else 0.0
     X0 = make_X(R_ref @ so3_exp(cr[0]), cp[0])
     return X0, cp[1] - 0.5 * h * acc_p, cr[1] - 0.5 * h * acc_r
-
-
-def _decay_basis(tau: np.ndarray, b: float) -> tuple[np.ndarray, np.ndarray]:
-    """φ(τ) = (1 − e^{−bτ})/b and ψ(τ) = (τ − φ)/b (→ τ and τ²/2 as b → 0): under dv/dτ = a − b v a start velocity
-    u moves a point by u φ(τ) and the constant a by a ψ(τ)."""
-    if abs(b) * float(np.max(np.abs(tau), initial=0.0)) < 1e-4:
-        return tau - 0.5 * b * tau**2, 0.5 * tau**2 - b * tau**3 / 6.0
-    phi = -np.expm1(-b * tau) / b
-    return phi, (tau - phi) / b
-
-
-def flight_params(model: ObjectModel, effects: dict) -> tuple[np.ndarray, float, float, np.ndarray, np.ndarray]:
-    """What ``flight_start_state`` reads of ``model`` under ``effects`` (simulator keys on top of ``model.effects``):
-    gravity a (3,) in W (m per data second², ``gravity_vector`` times ``time_scale``²), linear and angular damping
-    b, b_ω (per data second), centre of mass c_O (3,) m in O and inertia I_O (3,3) kg m² about it."""
-    from service.residuals.simulate import gravity_vector
-
-    eff = {**model.effects, **effects}
-    s = float(eff.get("time_scale", 1.0))
-    a = gravity_vector(eff) * s**2
-    b = float(eff.get("linear_damping", 0.0)) * s
-    b_w = float(eff.get("angular_damping", 0.0)) * s
-    return a, b, b_w, np.asarray(model.com_O, float), np.asarray(model.inertia_O, float)
-
-
-def flight_start_state(t: np.ndarray, X: np.ndarray, at: int, h: float, model: ObjectModel,
-                       effects: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Start pose X_WO (4,4), velocity v_WO_W (3,) and body spin w_WO_O (3,) at frame ``at`` of a free-flight window
-    (t (k,) s, X (k,4,4) X_WO), fitted with the flight dynamics of ``model`` under ``effects`` (simulator keys on top
-    of ``model.effects``) instead of a free quadratic.
-
-    Centre of mass p_c = p + R c_O: dp_c/dτ = v, dv/dτ = a − b v with a = the model's gravity (``gravity_vector``:
-    scale, tilt) and b its linear damping, so p_c(τ) = p₀ + u φ_b(τ) + a ψ_b(τ) (``_decay_basis``), linear in (p₀, u).
-    Spin in O: dω/dτ = I⁻¹((Iω) × ω) − b_ω ω (Euler's torque-free equations and the angular damping); over the short
-    window the rotation vector r = Log(R_atᵀ R) ≈ r₀ + u_ω φ_{b_ω}(τ) + c ψ_{b_ω}(τ), with the gyroscopic
-    c = I⁻¹((Iω̂) × ω̂) from the model-free quadratic's ω̂ (zero for an isotropic body). Times in data seconds
-    (``time_scale`` s: a s², b s). As in ``start_state``, the semi-implicit Euler step h makes the start velocity the
-    fitted derivative at τ = −h/2: v₀ = u − (h/2)(a − b u) (likewise ω₀). The simulator starts the CoM with
-    v₀ + ω × R c_O, so the returned v_WO_W = v₀ − ω_W × (R₀ c_O).
-    """
-    return _flight_fit(t, X, at, h, flight_params(model, effects), start_state(t, X, at, h)[2])
-
-
-def _flight_fit(t: np.ndarray, X: np.ndarray, at: int, h: float, params: tuple, w_hat: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``flight_start_state`` of the window (t, X, at, h) with the model's ``flight_params`` and the model-free
-    quadratic's spin ``w_hat`` (3,) rad/s in O (``start_state`` of the same window; it depends on the window only)."""
-    a, b, b_w, c_O, I = params
-    tau = t - t[at]
-    R = X[:, :3, :3]
-    pc = X[:, :3, 3] + R @ c_O
-    phi, psi = _decay_basis(tau, b)
-    A = np.stack([np.ones_like(tau), phi], 1)
-    (p0, u), *_ = np.linalg.lstsq(A, pc - psi[:, None] * a[None], rcond=None)
-    v0 = u - 0.5 * h * (a - b * u)
-    R_ref = R[at]
-    r = quat_to_rotvec(mat_to_quat(np.swapaxes(R_ref, 0, 1)[None] @ R))
-    c = np.linalg.solve(I, np.cross(I @ w_hat, w_hat))
-    phi_w, psi_w = _decay_basis(tau, b_w)
-    A = np.stack([np.ones_like(tau), phi_w], 1)
-    (r0, uw), *_ = np.linalg.lstsq(A, r - psi_w[:, None] * c[None], rcond=None)
-    w0 = uw - 0.5 * h * (c - b_w * uw)
-    R0 = R_ref @ so3_exp(r0)
-    p_O = p0 - R0 @ c_O
-    return make_X(R0, p_O), v0 - np.cross(R0 @ w0, R0 @ c_O), w0
 
 
 def _fit_window_ok(mode: np.ndarray) -> bool:
@@ -413,10 +344,7 @@ def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: Residual
                 dt = float(np.median(np.diff(t[w0:max(w1, w0 + 2)])))
                 h = dt / max(1, math.ceil(dt / cfg.sim_substep_s - 1e-9))
                 X0, v0, om0 = start_state(t[w0:w1], X[w0:w1], at, h)
-                fit = None
-                if cfg.flight_start_model and i not in ev_start and (mode[w0:w1] == FREE).all():
-                    fit = (t[w0:w1].copy(), X[w0:w1].copy(), at, h)
-                segs.append(Segment(k, i, j, t[i:j], X[i:j], tracked[i:j], mode[i:j], X0, v0, om0, robot, fit))
+                segs.append(Segment(k, i, j, t[i:j], X[i:j], tracked[i:j], mode[i:j], X0, v0, om0, robot))
             i = j if ok else i + 1
     return segs
 
@@ -493,31 +421,12 @@ class Evaluator:
         self.table_height = table_height
         self.rot_scale = rot_scale
         self.calls = 0
-        # per block with a per-model flight start (Segment.fit), keyed by id(fit): [fit (kept, so the id stays its
-        # own), the model-free spin ŵ of its window, the bits of the flight_params of its last start, that start]
-        self._flight: dict[int, list] = {}
-
-    def start(self, model: ObjectModel, effects: dict[str, float], seg: Segment
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Start state (X_WO (4,4), v_WO_W (3,), w_WO_O (3,)) of a rollout of ``seg``: the block's own, or, for a start
-        in free flight with ``flight_start_model``, ``flight_start_state`` for this (model, effects), computed again
-        only when its inputs (``flight_params``) differ from the block's previous rollout (an effect that does not act
-        in flight, e.g. a friction, leaves them as they were); the window's ŵ is computed once per block."""
-        if seg.fit is None:
-            return seg.X0, seg.v0, seg.w0
-        ent = self._flight.get(id(seg.fit))
-        if ent is None or ent[0] is not seg.fit:
-            ent = self._flight[id(seg.fit)] = [seg.fit, start_state(*seg.fit)[2], None, None]
-        params = flight_params(model, effects)
-        key = tuple(np.asarray(p, float).tobytes() for p in params)  # the same bits: the same start
-        if ent[2] != key:
-            ent[2], ent[3] = key, _flight_fit(*seg.fit, params, ent[1])
-        return ent[3]
 
     def rollout(self, model: ObjectModel, effects: dict[str, float], seg: Segment) -> np.ndarray:
+        """Poses X_WO (T,4,4) of ``model`` under ``effects`` rolled out open loop over ``seg`` from its start state
+        (the same for every model compared)."""
         self.calls += 1
-        X0, v0, w0 = self.start(model, effects, seg)
-        req = SimRequest(model, X0, v0, w0, seg.t, self.table_height, seg.robot, effects)
+        req = SimRequest(model, seg.X0, seg.v0, seg.w0, seg.t, self.table_height, seg.robot, effects)
         return self.simulate(req)
 
     def frame_errors(self, model, effects, seg) -> tuple[np.ndarray, np.ndarray]:

@@ -36,7 +36,6 @@ import numpy as np
 
 from service.model import ObjectModel
 from service.residuals.types import SPHERE_DRIVES, SimRequest
-from service.sim.types import VELOCITY_ONLY_CONTACT
 from service.transforms import make_X, mat_to_quat, quat_from_xyzw, quat_to_mat, quat_to_xyzw, so3_exp
 
 G = 9.81
@@ -103,14 +102,12 @@ class BulletSimulator:
     """Callable ``SimRequest -> (T,4,4)`` rollouts; owns one pybullet DIRECT client (call ``close``)."""
 
     def __init__(self, sim_substep_s: float = 0.002, collision_margin: float = 0.0, contact_breaking_m: float | None = None,
-                 contact_erp: float | None = None, sphere_drive: str = "lead", contact_persist_m: float | None = None,
-                 sphere_velocity_only: bool = False, touch_split: bool = False, restitution_threshold_mps: float = 0.05):
+                 sphere_drive: str = "lead", contact_persist_m: float | None = None, touch_split: bool = False,
+                 restitution_threshold_mps: float = 0.05):
         import pybullet
 
         if contact_breaking_m is not None and not contact_breaking_m > 0:
             raise ValueError(f"contact_breaking_m must be > 0 m or None, not {contact_breaking_m!r}")
-        if contact_erp is not None and not 0.0 <= contact_erp <= 1.0:
-            raise ValueError(f"contact_erp must be in [0, 1] or None, not {contact_erp!r}")
         if contact_persist_m is not None and not contact_persist_m > 0:
             raise ValueError(f"contact_persist_m must be > 0 m or None, not {contact_persist_m!r}")
         if sphere_drive not in SPHERE_DRIVES:
@@ -126,23 +123,15 @@ class BulletSimulator:
         self.contact_breaking = None if contact_breaking_m is None else float(contact_breaking_m)
         # the object-table manifold re-made with this threshold at the object's first touch (None: off). Bullet drops a
         # manifold point once its witness points have moved apart along the surface by more than the threshold, so at
-        # 1 mm a body sliding at v h > 0.5 mm per sub-step holds about one point and sinks (docs/residuals.md §7,
+        # 1 mm a body sliding at v h > 0.5 mm per sub-step holds about one point and sinks (docs/residuals-findings.md,
         # "Resting contact at the contact breaking threshold"); the first touch is still made at contact_breaking_m
         self.contact_persist = None if contact_persist_m is None else float(contact_persist_m)
-        # the fraction of a contact's penetration pushed out per sub-step (None: Bullet's default); pushing out d at
-        # erp d / h adds speed to a struck object when its contact starts inside it (``contact_breaking_m``)
-        self._contact_kw = {} if contact_erp is None else {"contactERP": float(contact_erp)}
         self.sphere_drive = sphere_drive
-        # the sphere-object contact solved at the velocity level only (no push-out of its overlap; False: Bullet's,
-        # the world's erp): a strike's contact starts inside the object by up to v h, and pushing that out at
-        # erp d / h launches the object up to 6 % faster than the sphere (docs/residuals.md §7, "The launch kick")
-        self.sphere_velocity_only = bool(sphere_velocity_only)
         # a sub-step split at the time of impact of the robot sphere on the object (``service.sim.touch``; False: off):
         # the sphere's contact starts at the touch instead of up to v h inside, so Bullet's push-out adds nothing to a
-        # strike's launch, while a sustained contact keeps Bullet's law (docs/residuals.md §7, "A strike's contact
+        # strike's launch, while a sustained contact keeps Bullet's law (docs/residuals-findings.md, "A strike's contact
         # that starts at the touch")
         self.touch_split = bool(touch_split)
-        self._contact_erp = contact_erp
         self._hulls: dict = {}
 
     def _hull_vertices(self, model: ObjectModel) -> np.ndarray:
@@ -250,7 +239,7 @@ class BulletSimulator:
         p.setGravity(*gravity_vector(eff), physicsClientId=cid)
         p.setPhysicsEngineParameter(
             fixedTimeStep=h, numSolverIterations=50, numSubSteps=0, deterministicOverlappingPairs=1,
-            restitutionVelocityThreshold=self.restitution_threshold, erp=CONSTRAINT_ERP, physicsClientId=cid, **self._contact_kw,
+            restitutionVelocityThreshold=self.restitution_threshold, erp=CONSTRAINT_ERP, physicsClientId=cid,
         )
         mu_t, mu_r = _frictions(model, eff)
         table_z = float(req.table_height) + float(eff.get("table_offset", 0.0))
@@ -299,11 +288,6 @@ class BulletSimulator:
             sphere = p.createMultiBody(10.0, sshape, basePosition=ee_path[0].tolist(), physicsClientId=cid)
             p.changeDynamics(sphere, -1, lateralFriction=mu_r, restitution=1.0, linearDamping=0.0,
                              angularDamping=0.0, physicsClientId=cid)
-            if self.sphere_velocity_only:
-                # no push-out of an overlap (cfm 5e-4 /kg at 2 ms); off by default: a sustained push's overlap is
-                # then never corrected
-                k, d = VELOCITY_ONLY_CONTACT
-                p.changeDynamics(sphere, -1, contactStiffness=k, contactDamping=d, physicsClientId=cid)
             p.setCollisionFilterPair(sphere, table, -1, -1, 0, physicsClientId=cid)
             cons = p.createConstraint(sphere, -1, -1, -1, p.JOINT_FIXED, [0, 0, 0], [0, 0, 0],
                                       ee_path[0].tolist(), physicsClientId=cid)
@@ -313,8 +297,6 @@ class BulletSimulator:
             from service.sim.touch import BULLET_ERPS, TouchSplitter
 
             erps = {**BULLET_ERPS, "erp": CONSTRAINT_ERP}
-            if self._contact_erp is not None:
-                erps["contactERP"] = float(self._contact_erp)
             # a point made while the gap is open is not solved (the lab's strike sphere has the same setting)
             p.changeDynamics(sphere, -1, contactProcessingThreshold=0.0, physicsClientId=cid)
             splitter = TouchSplitter(cid, sphere, body, erps)
@@ -350,27 +332,24 @@ class BulletSimulator:
         return out
 
 
-def make_simulator(sim_substep_s: float = 0.002, contact_breaking_m: float | None = None,
-                   contact_erp: float | None = None, sphere_drive: str = "lead",
-                   contact_persist_m: float | None = None, sphere_velocity_only: bool = False,
-                   touch_split: bool = False, restitution_threshold_mps: float = 0.05) -> BulletSimulator:
+def make_simulator(sim_substep_s: float = 0.002, contact_breaking_m: float | None = None, sphere_drive: str = "lead",
+                   contact_persist_m: float | None = None, touch_split: bool = False,
+                   restitution_threshold_mps: float = 0.05) -> BulletSimulator:
     """The built-in simulator used when the caller injects none (``ResidualConfig.sim_substep_s``,
-    ``contact_breaking_m``, ``contact_erp``, ``sphere_drive``, ``contact_persist_m``, ``sphere_velocity_only``,
-    ``touch_split`` and ``restitution_threshold_mps``)."""
-    return BulletSimulator(sim_substep_s, contact_breaking_m=contact_breaking_m, contact_erp=contact_erp,
-                           sphere_drive=sphere_drive, contact_persist_m=contact_persist_m,
-                           sphere_velocity_only=sphere_velocity_only, touch_split=touch_split,
+    ``contact_breaking_m``, ``sphere_drive``, ``contact_persist_m``, ``touch_split`` and
+    ``restitution_threshold_mps``)."""
+    return BulletSimulator(sim_substep_s, contact_breaking_m=contact_breaking_m, sphere_drive=sphere_drive,
+                           contact_persist_m=contact_persist_m, touch_split=touch_split,
                            restitution_threshold_mps=restitution_threshold_mps)
 
 
 def simulator_for(cfg) -> BulletSimulator:
     """The loop's built-in simulator for the settings ``cfg`` (a ``ResidualConfig``): its sub-step, contact breaking
-    threshold, contact erp, sphere drive, contact persistence, velocity-only sphere contact, the sub-step split at
-    the touch and the restitution velocity threshold. ``run`` uses it when the caller injects no simulator;
+    threshold, sphere drive, contact persistence, the sub-step split at the touch and the restitution velocity
+    threshold. ``run`` uses it when the caller injects no simulator;
     diagnosis scripts replay with it so that their rollouts are the loop's."""
-    return make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.contact_erp, cfg.sphere_drive,
-                          cfg.contact_persist_m, cfg.sphere_velocity_only, cfg.touch_split,
-                          cfg.restitution_threshold_mps)
+    return make_simulator(cfg.sim_substep_s, cfg.contact_breaking_m, cfg.sphere_drive, cfg.contact_persist_m,
+                          cfg.touch_split, cfg.restitution_threshold_mps)
 
 
 def service_sim_simulator(sim_cfg=None):

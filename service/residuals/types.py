@@ -131,49 +131,31 @@ class ResidualConfig:
     # quadratic in time (and torque-free rotation nearly a line), so the longer window only averages more pose noise
     # (velocity error ~ 1/sqrt(sum tau^2)); the blocks and every other start state are unchanged. 0 = off (the default:
     # on toss seeds 39-42 the error where an effect acts fell on 14 of 16 cells, but one restitution was lost;
-    # docs/residuals.md §7, "The floor the right model keeps")
+    # docs/residuals-findings.md, "The floor the right model keeps")
     init_fit_frames_flight: int = 0
-    # a block that starts in free flight: its start state fitted on its (flight) fit window with each model's own
-    # flight dynamics (loop.flight_start_state: the model's gravity, linear and angular damping, torque-free spin),
-    # per model and effect value compared, instead of the model-free quadratic: the acceleration the quadratic spends
-    # a parameter on is known given the model, so the start velocity and spin are fitted with one parameter fewer per
-    # axis (about half the error at a toss's first block for the right model). False = off (the default: the model
-    # without the effect then fits its start on the frames it is judged on and absorbs part of a flight effect;
-    # docs/residuals.md §7)
-    flight_start_model: bool = False
     sim_substep_s: float = 0.002  # max physics step of the built-in simulator
     # contact breaking threshold of the built-in simulator, m (None: Bullet's 0.02 m): pairs closer than this get a
     # contact point before they touch; with 0.02 m a strike's bounce was lost in 5-7 of 12 contact phases and 46 of 80
     # toss landings declared e = 0.5 rebounded like e = 0 (the point made many sub-steps ahead of the touch), with 1 mm
     # (about the gap a 0.5 m/s strike closes in one 2 ms sub-step) in none. 1 mm is the default (docs/residuals.md §6,
-    # §7 "The toss generator's bounce"). The value is pybullet's contactBreakingThreshold, which Bullet scales by the
+    # docs/residuals-findings.md "The toss generator's bounce"). The value is pybullet's contactBreakingThreshold, which Bullet scales by the
     # smaller shape's bounding radius: "1 mm" makes points within about 0.03 mm for the loop's sphere and 0.09 mm for a
-    # 10.5 cm cube on the table (§6, "What the value is in Bullet"); the name keeps the unit the setting is given in
+    # 10.5 cm cube on the table (docs/residuals.md §6); the name keeps the unit the setting is given in
     contact_breaking_m: float | None = 0.001
-    # fraction of a contact's penetration the built-in simulator pushes out per sub-step (None: Bullet's default):
-    # with contacts made at the touch (contact_breaking_m) a strike starts inside the object by up to v h, and the
-    # push-out d erp / h added up to 7 % to an e = 0 launch with Bullet's default, 4 % with 0.05 (docs/residuals.md §6)
-    contact_erp: float | None = None
     # threshold of the object-table contact manifold re-made at the object's first touch, m (None: off, the default):
     # at contact_breaking_m = 1 mm a sliding body's points are dropped after 1 mm of travel along the table and it
-    # holds about one point (docs/residuals.md §7, "Resting contact at the contact breaking threshold")
+    # holds about one point (docs/residuals-findings.md, "Resting contact at the contact breaking threshold")
     contact_persist_m: float | None = None
-    # the robot sphere's contact with the object solved at the velocity level only (False = off, the default: Bullet's
-    # push-out). A strike's contact starts inside the object by up to v h (1 mm at 0.5 m/s, 2 ms) and Bullet pushes
-    # that out at erp d / h, launching the object up to 6 % faster than the sphere (velocity-only: 1.0002 v); but a
-    # sustained push then drifts into the object uncorrected, and the lab's push sessions lost their clock offset
-    # (docs/residuals.md §7, "The launch kick")
-    sphere_velocity_only: bool = False
     # the built-in simulator's sub-step split at the time of impact of the robot sphere on the object (False = off):
     # the contact starts at the touch (0.01 mm inside, Bullet's slop) instead of up to v h inside, so Bullet's push-out
-    # adds nothing to a strike's launch, and a sustained push keeps Bullet's law (docs/residuals.md §7, "A strike's
+    # adds nothing to a strike's launch, and a sustained push keeps Bullet's law (docs/residuals-findings.md, "A strike's
     # contact that starts at the touch"). On by default with the inverse drive below ("The split and the inverse drive
     # together"); with the lead drive it left the strike test's damping 1.42 /s for 2.0
     touch_split: bool = True
     # relative normal speed below which the built-in simulator's contacts get no bounce, m/s (Bullet's
     # restitutionVelocityThreshold; 0.05 = the loop's since it has one, Bullet's own default is 0.2, which the synthetic
     # lab keeps). On strikes the sphere's re-touches and follow-through pushes close below 0.2 m/s: replayed at 0.05 they
-    # bounce, in the lab not (docs/residuals.md §7, "Restitution on strikes as a test"; measured, 0.05 kept)
+    # bounce, in the lab not (docs/residuals-findings.md, "Restitution on strikes as a test"; measured, 0.05 kept)
     restitution_threshold_mps: float = 0.05
     contact_tol_m: float = 0.004  # gap below which the table counts as touching (mode classifier)
     rest_speed: float = 0.03  # m/s, below this (and touching) the object is at rest
@@ -203,21 +185,21 @@ class ResidualConfig:
     launch_max_s: float = 1.0  # longest launch block, s
     # window of the local quadratic fit that smooths the measured sphere path before the rollouts, s (0: off)
     robot_smooth_s: float = 0.08
-    # the weights of that fit (ROBOT_SMOOTH_WEIGHTS; docs/residuals.md §7, "The sphere path's velocity noise at the
+    # the weights of that fit (ROBOT_SMOOTH_WEIGHTS; docs/residuals-findings.md, "The sphere path's velocity noise at the
     # launch"): "box" (Savitzky-Golay, equal weights; before, over 0.04 s) or "biweight" (weights vanishing smoothly at
     # the window's edges: still exact for a constant acceleration, and the path's sample-to-sample increments, the
     # velocity the rollouts hand a struck object, keep 0.108 of the sensor noise over 19 samples where the 11-sample
     # Savitzky-Golay kept 0.243: on the lab's strikes its launches are no longer kicked fast by the noise). Default
-    # "biweight" over 0.08 s with the inverse drive and the touch split (docs/residuals.md §7, "The split and the
+    # "biweight" over 0.08 s with the inverse drive and the touch split (docs/residuals-findings.md, "The split and the
     # inverse drive together"); before, "box" over 0.04 s with the lead drive: without the split the pair took a table
     # friction for the damping on the strike test session under one BLAS kernel set ("Both replay settings together")
     robot_smooth_weights: str = "biweight"
     # how the built-in simulator drags the sphere along the measured path (simulate.SPHERE_DRIVES; docs/residuals.md
-    # §6 and §7, "Linear damping fitted low on strikes"): "lead" reads the path the constraint's steady lag ahead (exact
+    # §6 and docs/residuals-findings.md, "Linear damping fitted low on strikes"): "lead" reads the path the constraint's steady lag ahead (exact
     # at a constant velocity; at a strike's brake the sphere rounds its speed peak and launches the object 1.5-2.5 %
     # too slow, which a damping fit absorbs by 15-30 %); "inverse" inverts the constraint's update, so the free
     # sphere is on its path at every sub-step; with the biweight path above its launches are within 1 % of the exact
-    # replay on noisy strikes (docs/residuals.md §7, "The sphere path's velocity noise at the launch"). Default
+    # replay on noisy strikes (docs/residuals-findings.md, "The sphere path's velocity noise at the launch"). Default
     # "inverse" with touch_split (the split removes the launch kick that had offset the lead drive's slow launch; "The
     # split and the inverse drive together"; before, "lead": "Both replay settings together")
     sphere_drive: str = "inverse"
@@ -226,15 +208,10 @@ class ResidualConfig:
     # candidates fitted on the complement of each fold, rules 1-7 applied to the union of the folds' held-out errors, then
     # rule 8: every fold's value departs from "no effect" the same way (crossfit.fold_agreement). Default 2: on plain
     # learned-model strike sessions (the pipeline's path) one split accepted a wrong effect on 3 of 21, 2 folds on none
-    # (docs/residuals.md §7, "Plain learned-model sessions 610-621"); 2-3.7x the CPU of one split
+    # (docs/residuals-findings.md, "Plain learned-model sessions 610-621"); 2-3.7x the CPU of one split
     folds: int = 2
-    # look-alike rule (docs/residuals.md §4, rule 9): a candidate that passes rules 1-8 is accepted only if its
-    # held-out predictions beat those of each of its look-alikes (``Effect.lookalikes``, e.g. table friction and
-    # linear damping) fitted in the same round, on all frames of the held-out blocks where either acts (rules 2 and
-    # 3 on the paired errors of the two); off leaves every output as before
-    lookalike_check: bool = False
-    # refutation by a look-alike (docs/residuals.md §4 rule 9b, §7 "Friction and damping told apart"): a candidate that
-    # passes rules 1-8 (and 9 if on) is rejected when one of its look-alikes fitted in the same round predicts the
+    # refutation by a look-alike (docs/residuals.md §4 rule 9b, docs/residuals-findings.md "Friction and damping told apart"): a candidate that
+    # passes rules 1-8 is rejected when one of its look-alikes fitted in the same round predicts the
     # held-out blocks' *position* better beyond noise (rules 2 and 3 on the paired errors |Δp| of all frames of the
     # blocks where either acts: the component both effects act on, the CoM's path through the slide and where it
     # stopped); when neither is better the greedy pick decides as before. Off leaves every output as before
@@ -247,15 +224,11 @@ class ResidualConfig:
         if self.robot_smooth_weights not in ROBOT_SMOOTH_WEIGHTS:
             raise ValueError(f"ResidualConfig.robot_smooth_weights must be one of {ROBOT_SMOOTH_WEIGHTS}, "
                              f"not {self.robot_smooth_weights!r}")
-        if not isinstance(self.lookalike_check, bool):
-            raise ValueError(f"ResidualConfig.lookalike_check must be a bool, not {self.lookalike_check!r}")
         if not isinstance(self.lookalike_refute, bool):
             raise ValueError(f"ResidualConfig.lookalike_refute must be a bool, not {self.lookalike_refute!r}")
         for name in ("max_base_error_rel_learned", "launch_speed", "launch_max_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ResidualConfig.{name} must be > 0, not {getattr(self, name)!r}")
-        if not isinstance(self.flight_start_model, bool):
-            raise ValueError(f"ResidualConfig.flight_start_model must be a bool, not {self.flight_start_model!r}")
         if not (isinstance(self.init_fit_frames_flight, int) and not isinstance(self.init_fit_frames_flight, bool)
                 and self.init_fit_frames_flight >= 0):
             raise ValueError(f"ResidualConfig.init_fit_frames_flight must be an integer >= 0, not {self.init_fit_frames_flight!r}")
@@ -271,15 +244,11 @@ class ResidualConfig:
         if self.contact_persist_m is not None and self.contact_breaking_m is None:
             raise ValueError("ResidualConfig.contact_persist_m needs contact_breaking_m (the manifold is re-made at "
                              "Bullet's threshold only when the loop uses its own): set both or neither")
-        if not isinstance(self.sphere_velocity_only, bool):
-            raise ValueError(f"ResidualConfig.sphere_velocity_only must be a bool, not {self.sphere_velocity_only!r}")
         if not isinstance(self.touch_split, bool):
             raise ValueError(f"ResidualConfig.touch_split must be a bool, not {self.touch_split!r}")
         v = self.restitution_threshold_mps
         if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v < np.inf):
             raise ValueError(f"ResidualConfig.restitution_threshold_mps must be a number >= 0 m/s, not {v!r}")
-        if self.contact_erp is not None and not 0.0 <= self.contact_erp <= 1.0:
-            raise ValueError(f"ResidualConfig.contact_erp must be in [0, 1] or None, not {self.contact_erp!r}")
         if not (isinstance(self.folds, int) and self.folds >= 1):
             raise ValueError(f"ResidualConfig.folds must be an integer >= 1, not {self.folds!r}")
         if self.unit_statistic not in ("relative", "mean"):

@@ -3,7 +3,7 @@ and the residual loop's replay.
 
 Bullet steps a contact from the step in which it is found: a sphere that reaches a resting object during a step of
 length h is found inside it by up to v h, and Bullet's solver pushes that overlap out through the velocity (erp d / h),
-so a struck object leaves faster than the physics of the impact gives (docs/residuals.md §7, "The launch kick"). The
+so a struck object leaves faster than the physics of the impact gives (docs/residuals-findings.md, "The launch kick"). The
 event-driven treatment of an impact advances the world to the time of impact t* first, so that the contact starts at
 the touch, then by the rest of the step: :class:`TouchSplitter`.
 

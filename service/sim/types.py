@@ -13,8 +13,8 @@ import numpy as np
 # (2.4e-4 /kg at 240 Hz, 5e-4 /kg at 2 ms) is negligible against the inverse effective mass of a sphere-object pair
 # (> 1 /kg for objects under 1 kg). Bullet's split impulse (a position-only push-out) would be the usual remedy, but
 # its multibody solver, which pybullet's bodies use, does not implement it (measured: no effect, bit for bit). Used,
-# off by default, by the synthetic lab's strike sphere (``service.synth.sim.STRIKE_VELOCITY_ONLY``) and the residual
-# loop's sphere (``ResidualConfig.sphere_velocity_only``).
+# off by default, by the synthetic lab's strike sphere (``service.synth.sim.STRIKE_VELOCITY_ONLY``; the residual loop's
+# sphere had the same option, removed after it was measured: docs/residuals-findings.md, "The launch kick").
 VELOCITY_ONLY_CONTACT: tuple[float, float] = (0.0, 1.0e6)
 
 

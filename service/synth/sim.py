@@ -77,13 +77,13 @@ STRIKE_HOLD = 0.35  # s the sphere stays while the object slides
 # default, every contact point made is solved). Bullet makes a point while the gap d is still below its breaking
 # threshold (0.02 x the smaller shape's bounding radius: 0.64 mm for the sphere) and its solver then closes the gap at
 # d / h instead of bouncing, so the bounce of a strike was lost by up to d / h = 0.15 m/s at 240 Hz in about a third
-# of the strikes, at random with where in a step the touch fell (docs/residuals.md §7, "The synthetic lab's strikes").
+# of the strikes, at random with where in a step the touch fell (docs/residuals-findings.md, "The synthetic lab's strikes").
 # The object-table pair keeps Bullet's default (rest and sliding unchanged); push, pivot and topple keep it too.
 # Off by default (None; STRIKE_TOUCH_PROCESSING_M switches it on): a contact solved from the touch on starts inside
 # the object and Bullet's push-out of that overlap launches the box up to 7 % fast (below), which the residual loop's
 # replay reads as less damping: on the strike test session a hidden linear damping of 2.0 /s was fitted 1.65 /s with
 # one BLAS kernel set and 1.49 /s (over the 25 % bound) with another, against 1.82-1.87 /s with this off
-# (docs/residuals.md §7, "The synthetic lab's strikes", "The launch kick"). Restitution on strikes needs it on.
+# (docs/residuals-findings.md, "The synthetic lab's strikes", "The launch kick"). Restitution on strikes needs it on.
 STRIKE_TOUCH_PROCESSING_M: float = 0.0
 STRIKE_CONTACT_PROCESSING_M: float | None = None
 # strike: the sphere-object contact solved at the velocity level only, adding no momentum to push out the overlap it
@@ -95,7 +95,7 @@ STRIKE_CONTACT_PROCESSING_M: float | None = None
 # negligible against the pair's inverse effective mass (>= 3.4 /kg): the launch is the heavy striker's
 # (1 + e) m_E / (m_E + m) within 1 %. Off by default: the residual loop's replay keeps Bullet's push-out (its pushes
 # need it), and a lab without the kick against a replay with it moved the strike test's fitted damping from 1.65 to
-# 2.50 or a wrong friction (docs/residuals.md §7, "The launch kick"). pybullet's split impulse does not act here:
+# 2.50 or a wrong friction (docs/residuals-findings.md, "The launch kick"). pybullet's split impulse does not act here:
 # Bullet's multibody solver (pybullet's bodies are multibodies) does not implement it (measured: sessions identical
 # bit for bit).
 STRIKE_VELOCITY_ONLY: tuple[float, float] = VELOCITY_ONLY_CONTACT
@@ -108,7 +108,7 @@ STRIKE_CONTACT_STIFFNESS_DAMPING: tuple[float, float] | None = None
 # Measured: the isolated strike's launch is the same strike stepped 16 times finer within 0.8 % (touch mode: up to 6 %
 # fast). On by default, together with the residual loop's split (ResidualConfig.touch_split) and its inverse drive on
 # the biweight 0.08 s path: with the loop's former lead drive the strike test's hidden damping was fitted 1.42 /s for
-# 2.0, with the inverse drive 1.96 /s under both BLAS kernel sets (docs/residuals.md §7, "A strike's contact that starts
+# 2.0, with the inverse drive 1.96 /s under both BLAS kernel sets (docs/residuals-findings.md, "A strike's contact that starts
 # at the touch", "The split and the inverse drive together"). False: every sphere-object point as Bullet makes it.
 STRIKE_TOUCH_SPLIT: bool = True
 

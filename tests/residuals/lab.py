@@ -22,7 +22,7 @@ MASS = 0.37
 # contact point of a landing exists many sub-steps before the touch and the generated bounce is not the declared e:
 # 46 of 80 first landings of tosses declared e = 0.5 rebound like e = 0, and flat drops at 1-2 m/s rebound at
 # 0.32-0.43 x (mean) instead of 0.5; with 1 mm no landing loses its bounce and flat drops rebound at 0.48 x
-# (docs/residuals.md §7, "The toss generator's bounce"; benchmarks/toss_restitution.py).
+# (docs/residuals-findings.md, "The toss generator's bounce"; benchmarks/toss_restitution.py).
 TOSS_CONTACT_BREAKING_M: float | None = 0.001
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from service.residuals.crossfit import _Fold, lookalike_refutation, shared_component
 from service.residuals.effects import REGISTRY
-from service.residuals.loop import Segment
+from service.residuals.loop import Segment, head_to_head
 from service.residuals.modes import FREE, SLIDING
 from service.residuals.types import EffectCandidate, ResidualConfig
 
@@ -102,3 +102,13 @@ def test_config_flag_validated():
     assert isinstance(ResidualConfig().lookalike_refute, bool)
     with pytest.raises(ValueError):
         ResidualConfig(lookalike_refute="yes")
+
+
+def test_head_to_head_statistic():
+    cfg = ResidualConfig()
+    rng = np.random.default_rng(1)
+    b = 0.006 * (1 + 0.1 * rng.standard_normal(20))
+    better, txt = head_to_head(b, 0.8 * b, np.arange(20), cfg, rng)
+    assert better and "20/0 blocks" in txt
+    assert not head_to_head(b, b * (1 + 0.01 * rng.standard_normal(20)), np.arange(20), cfg, rng)[0]
+    assert not head_to_head(b, 1.2 * b, np.arange(20), cfg, rng)[0]

@@ -1,4 +1,4 @@
-"""Resting contact in the loop's simulator at its default contact breaking threshold (docs/residuals.md §7, "Resting
+"""Resting contact in the loop's simulator at its default contact breaking threshold (docs/residuals-findings.md, "Resting
 contact at the contact breaking threshold"): the loop's bodies have no collision margin, so a cube at rest sits
 0.01 mm in the table, far inside 1 mm, and its contact points neither drop nor re-form; a threshold below the margin
 (or below the height of a slightly tilted face's raised edge) does break them."""

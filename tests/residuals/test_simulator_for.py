@@ -5,13 +5,10 @@ from service.residuals.types import ResidualConfig
 
 
 def test_simulator_for_carries_the_settings():
-    cfg = ResidualConfig(sim_substep_s=0.004, contact_breaking_m=0.003, contact_erp=0.1, sphere_drive="inverse",
+    cfg = ResidualConfig(sim_substep_s=0.004, contact_breaking_m=0.003, sphere_drive="inverse",
                          contact_persist_m=0.02)
     with simulator_for(cfg) as sim:
         assert (sim.substep, sim.contact_breaking, sim.sphere_drive, sim.contact_persist) == (0.004, 0.003, "inverse", 0.02)
-        assert sim._contact_kw == {"contactERP": 0.1}
-    with simulator_for(ResidualConfig(sphere_velocity_only=True)) as sim:
-        assert sim.sphere_velocity_only
     with simulator_for(ResidualConfig(touch_split=True)) as sim:
         assert sim.touch_split
     with simulator_for(ResidualConfig(restitution_threshold_mps=0.2)) as sim:
@@ -24,6 +21,5 @@ def test_simulator_for_the_defaults_is_the_loops():
         assert sim.contact_breaking == cfg.contact_breaking_m == 0.001
         assert sim.sphere_drive == cfg.sphere_drive
         assert sim.contact_persist is None
-        assert sim.sphere_velocity_only is cfg.sphere_velocity_only is False
         assert sim.touch_split is cfg.touch_split is True
         assert sim.restitution_threshold == cfg.restitution_threshold_mps == 0.05

@@ -69,7 +69,7 @@ def test_inverse_drive_hands_a_struck_cube_the_sphere_speed():
 
 
 def test_sphere_drive_setting():
-    # the loop's default: the inverse drive on the biweight path over 0.08 s, with the touch split (docs/residuals.md §7,
+    # the loop's default: the inverse drive on the biweight path over 0.08 s, with the touch split (docs/residuals-findings.md,
     # "The split and the inverse drive together"); the simulator built alone keeps the lead
     cfg = ResidualConfig()
     assert (cfg.sphere_drive, cfg.robot_smooth_weights, cfg.robot_smooth_s) == ("inverse", "biweight", 0.08)

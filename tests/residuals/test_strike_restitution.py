@@ -2,8 +2,9 @@
 
 A kinematically driven sphere striking through the CoM launches the cube at (1 + e) v. With Bullet's default
 contact breaking threshold (0.02 m) the contact point is made many sub-steps before the touch and the bounce is lost in
-some contact phases (here 2 of the 6); with ``contact_breaking_m`` = 1 mm it is kept in all, and ``contact_erp`` = 0.05
-keeps the push-out of the contact, which then starts inside the cube, from speeding the launch (docs/residuals.md §6).
+some contact phases (here 2 of the 6); with ``contact_breaking_m`` = 1 mm it is kept in all; the contact then starts
+inside the cube, and Bullet's push-out of that overlap speeds the launch by up to 6 % unless the sub-step is split at
+the touch (``touch_split``; docs/residuals.md §6).
 """
 
 from __future__ import annotations
@@ -44,38 +45,12 @@ GAPS = 0.03 + np.random.default_rng(0).uniform(0.0, 0.005, 6)  # contact phases 
 
 
 def test_strike_launches_with_the_restitution_in_every_contact_phase():
-    with BulletSimulator(0.002, contact_breaking_m=0.001, contact_erp=0.05) as sim:
+    with BulletSimulator(0.002, contact_breaking_m=0.001) as sim:
         for gap in GAPS:
             v0 = _launch_speed(sim, 0.0, gap)
             v3 = _launch_speed(sim, 0.3, gap)
-            assert v0 == pytest.approx(V, rel=0.05), f"start gap {gap:.4f} m"
+            assert v0 == pytest.approx(V, rel=0.07), f"start gap {gap:.4f} m"
             assert v3 / v0 == pytest.approx(1.3, abs=0.05), f"start gap {gap:.4f} m"
-
-
-def test_softer_push_out_slows_the_inelastic_launch():
-    """A contact made at the touch starts inside the struck object; a smaller contact erp pushes it out slower, so the
-    e = 0 launch is nearer v (never slower than with Bullet's default)."""
-    with BulletSimulator(0.002, contact_breaking_m=0.001) as hard, \
-            BulletSimulator(0.002, contact_breaking_m=0.001, contact_erp=0.05) as soft:
-        over_hard = np.array([_launch_speed(hard, 0.0, g) for g in GAPS]) / V - 1.0
-        over_soft = np.array([_launch_speed(soft, 0.0, g) for g in GAPS]) / V - 1.0
-    assert np.all(over_soft <= over_hard + 1e-6)
-    assert over_soft.max() < over_hard.max()
-
-
-def test_velocity_only_sphere_contact_launches_at_the_spheres_speed():
-    """Solved at the velocity level only (``sphere_velocity_only``, off by default) the contact adds no push-out of the
-    overlap it starts with: the e = 0 launch is v in every phase (measured 1.0002 v; with Bullet's push-out
-    1.001-1.059 v) and e = 0.3 gives 1.3 x that (1.298-1.299)."""
-    assert not ResidualConfig().sphere_velocity_only
-    with BulletSimulator(0.002, contact_breaking_m=0.001, sphere_velocity_only=True) as sim, \
-            BulletSimulator(0.002, contact_breaking_m=0.001) as pushed:
-        v0 = np.array([_launch_speed(sim, 0.0, g) for g in GAPS])
-        v3 = np.array([_launch_speed(sim, 0.3, g) for g in GAPS])
-        kicked = np.array([_launch_speed(pushed, 0.0, g) for g in GAPS])
-    assert np.all(np.abs(v0 / V - 1.0) < 0.005), v0
-    assert np.all(np.abs(v3 / v0 - 1.3) < 0.01), v3 / v0
-    assert kicked.max() > 1.03 * V, kicked
 
 
 def test_touch_split_launches_at_the_spheres_speed():
@@ -119,10 +94,10 @@ def test_contact_breaking_validated():
         ResidualConfig(contact_breaking_m=0.0)
     with pytest.raises(ValueError, match="contact_breaking_m"):
         BulletSimulator(0.002, contact_breaking_m=-1.0)
-    with pytest.raises(ValueError, match="contact_erp"):
-        ResidualConfig(contact_erp=1.5)
-    with pytest.raises(ValueError, match="sphere_velocity_only"):
-        ResidualConfig(sphere_velocity_only=1)
+    with pytest.raises(TypeError):  # removed options (docs/residuals-findings.md, "The launch kick")
+        ResidualConfig(contact_erp=0.05)
+    with pytest.raises(TypeError):
+        ResidualConfig(sphere_velocity_only=True)
     with pytest.raises(ValueError, match="touch_split"):
         ResidualConfig(touch_split="on")
 

@@ -20,7 +20,7 @@ poses with 0.5 mm / 0.3 deg of noise and the robot log as robot.csv holds it (0.
 stamps). The model is the catalogue shape, mass and uniform-density inertia with the declared friction (0.15);
 no nuisance refit (with a model carrying learned-model errors the refit soaks up part of a friction change: see
 docs/residuals.md). Angular damping is not tested: on strikes it is fitted high (within 25 % on 2 of 5 and 1 of 2
-catalogue sessions; docs/residuals.md §7).
+catalogue sessions; docs/residuals-findings.md).
 """
 
 import dataclasses

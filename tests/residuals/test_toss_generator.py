@@ -2,7 +2,7 @@
 
 With Bullet's contact breaking threshold (0.02 m) a landing's contact point exists many sub-steps before the touch and
 the generated bounce is weaker than the declared restitution or lost (tumbling tosses declared e = 0.5 land as if e were
-0); the generator therefore simulates with ``TOSS_CONTACT_BREAKING_M`` = 1 mm (docs/residuals.md §7, "The toss
+0); the generator therefore simulates with ``TOSS_CONTACT_BREAKING_M`` = 1 mm (docs/residuals-findings.md, "The toss
 generator's bounce").
 """
 

@@ -4,10 +4,10 @@ physics step. A heavy striker launches the box at (1 + e) x the launch with e = 
 the step split at the time of impact (``STRIKE_TOUCH_SPLIT``); the other contacts are tested with it off. With every
 contact point solved as Bullet makes it (``STRIKE_CONTACT_PROCESSING_M = None``) the point is made while
 the gap is still open and the bounce is lost in some phases (here 3 of the 6); solved from the touch on
-(``STRIKE_TOUCH_PROCESSING_M``, off by default) it is kept in all (docs/residuals.md §7, "The synthetic lab's
+(``STRIKE_TOUCH_PROCESSING_M``, off by default) it is kept in all (docs/residuals-findings.md, "The synthetic lab's
 strikes"). The contact then starts inside the box by up to v h; with Bullet's push-out of that overlap launches run up
 to a few per cent above the physics (why the setting is off), with the sphere's contact solved at the velocity level only (``STRIKE_CONTACT_STIFFNESS_DAMPING`` =
-``STRIKE_VELOCITY_ONLY``, off by default) they are the heavy striker's within 1 % (docs/residuals.md §7, "The launch
+``STRIKE_VELOCITY_ONLY``, off by default) they are the heavy striker's within 1 % (docs/residuals-findings.md, "The launch
 kick").
 """
 
