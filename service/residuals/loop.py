@@ -676,12 +676,17 @@ def _fit(effect: Effect, guess, base_model, base_effects, chosen, ev: Evaluator,
     return best, loss(best)
 
 
-def contact_episodes(segs: list[Segment]) -> tuple[np.ndarray, np.ndarray, float, np.ndarray] | None:
-    """The robot-contact episodes of ``segs`` (runs of consecutive tracked frames classified ``robot_contact`` within
-    a block) for ``contact_gap_term``: the frames' observed poses X_WO (F,4,4), the sphere centres p_WE (F,3) in W,
-    m, interpolated at the frame times from each block's robot path, the sphere radius, m, and the episode index of
-    every frame (F,); None when there is none."""
+def contact_episodes(segs: list[Segment], cfg: ResidualConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray] | None:
+    """The strike contacts of ``segs`` for ``contact_gap_term``: runs of consecutive tracked frames classified
+    ``robot_contact`` within a block that reach a launch of the object from rest (``launches`` on the block's frames:
+    a run meeting frames onset − 1 … onset + 1), where the sphere is known to have touched the object. Runs without a
+    launch are left out: the classifier's gap tolerance (``contact_tol_m``, with the hull as it is) also flags a
+    sphere resting or passing a few mm from the object, which says nothing about where the surface is. Returns the
+    frames' observed poses X_WO (F,4,4), the sphere centres p_WE (F,3) in W, m (interpolated at the frame times
+    from the block's robot path), the sphere radius, m, and the episode index of every frame (F,); None when there
+    is none."""
     Xs, ps, ids, radius = [], [], [], None
+    n_ep = 0
     for sg in segs:
         if sg.robot is None:
             continue
@@ -689,21 +694,25 @@ def contact_episodes(segs: list[Segment]) -> tuple[np.ndarray, np.ndarray, float
         idx = np.flatnonzero(on)
         if not len(idx):
             continue
+        onsets = [k for k, _ in launches(sg.t, sg.X_obs, np.asarray(sg.tracked, bool), cfg)]
+        if not onsets:
+            continue
         rb = sg.robot
-        p = np.stack([np.interp(sg.t[idx], rb.t, rb.p_WE[:, i]) for i in range(3)], 1)
-        first = len(ids) and ids[-1][-1] + 1
-        run = np.concatenate([[0], np.cumsum(np.diff(idx) > 1)]) + first
-        Xs.append(sg.X_obs[idx])
-        ps.append(p)
-        ids.append(run)
-        radius = float(rb.radius)
+        for run in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
+            if not any(run[0] - 1 <= k <= run[-1] + 1 for k in onsets):
+                continue
+            Xs.append(sg.X_obs[run])
+            ps.append(np.stack([np.interp(sg.t[run], rb.t, rb.p_WE[:, i]) for i in range(3)], 1))
+            ids.append(np.full(len(run), n_ep))
+            n_ep += 1
+            radius = float(rb.radius)
     if not Xs:
         return None
     return np.concatenate(Xs), np.concatenate(ps), radius, np.concatenate(ids)
 
 
 def contact_gap_term(model: ObjectModel, episodes) -> float:
-    """Mean over robot-contact episodes of |g_e|, m, where g_e is the smallest signed sphere-hull gap
+    """Mean over the strike contacts (``contact_episodes``) of |g_e|, m, where g_e is the smallest signed sphere-hull gap
     (``modes.sphere_gaps``: face-plane distance of the sphere centre minus its radius, at the observed pose) over
     the episode's frames: where the sphere pushes the object it touches the surface (g_e ≈ 0); a hull too large
     along the contact normal leaves it inside (g_e < 0), one too small short of it. The smallest gap of an episode
@@ -719,13 +728,14 @@ def contact_gap_term(model: ObjectModel, episodes) -> float:
 
 
 def _fit_nuisance(names: list[str], model: ObjectModel, base_effects: dict, ev: Evaluator, train: list[Segment],
-                  cfg: ResidualConfig) -> tuple[dict[str, tuple], float, float]:
+                  cfg: ResidualConfig, gap_segs: list[Segment] | None = None) -> tuple[dict[str, tuple], float, float]:
     """Joint fit of the nuisance corrections (all their parameters at once, Nelder–Mead from "no change" in
     coordinates scaled to the bounds) minimising the mean error over all frames of the training blocks.
     Returns ({name: θ}, E_train before, E_train after); the corrections are kept only when the training
     error falls by at least ``min_rel_improvement``, otherwise {} is returned. With ``nuisance_contact_gap_weight``
     > 0 the objective (and the test of the fall) adds that weight × ``contact_gap_term`` of the corrected model on
-    the blocks' robot-contact episodes; E_train stays the rollout error."""
+    the strike contacts of ``gap_segs`` (default: ``train``; the callers give all training blocks of the fold, of
+    which ``train`` is a sample: strikes are a minority of the blocks); E_train stays the rollout error."""
     effs = [REGISTRY[n] for n in names]
     lo = np.concatenate([e.lower for e in effs])
     hi = np.concatenate([e.upper for e in effs])
@@ -739,7 +749,7 @@ def _fit_nuisance(names: list[str], model: ObjectModel, base_effects: dict, ev: 
         return {e.name: tuple(float(v) for v in th[sizes[i]:sizes[i + 1]]) for i, e in enumerate(effs)}
 
     w_gap = cfg.nuisance_contact_gap_weight
-    episodes = contact_episodes(train) if w_gap > 0 else None
+    episodes = contact_episodes(train if gap_segs is None else gap_segs, cfg) if w_gap > 0 else None
     rollout: dict[tuple, float] = {}
 
     def loss(z) -> float:
@@ -770,11 +780,12 @@ def _fit_nuisance(names: list[str], model: ObjectModel, base_effects: dict, ev: 
 
 
 def _refine_joint(nuis: dict[str, tuple], eff: Effect, theta, chosen: dict[str, tuple], input_model: ObjectModel,
-                  input_effects: dict, ev: Evaluator, train: list[Segment], cfg: ResidualConfig) -> tuple[dict[str, tuple], tuple]:
+                  input_effects: dict, ev: Evaluator, train: list[Segment], cfg: ResidualConfig,
+                  gap_segs: list[Segment] | None = None) -> tuple[dict[str, tuple], tuple]:
     """Refit the nuisance corrections together with a candidate effect (Nelder–Mead from the current values,
     all frames of the training blocks), so that the effect is not biased by corrections that soaked up part
     of it before it was added (and the corrections are not biased by the missing effect). With
-    ``nuisance_contact_gap_weight`` the objective has ``_fit_nuisance``'s contact-gap term."""
+    ``nuisance_contact_gap_weight`` the objective has ``_fit_nuisance``'s contact-gap term (on ``gap_segs``)."""
     effs = [REGISTRY[n] for n in nuis] + [eff]
     start = [nuis[n] for n in nuis] + [tuple(theta)]
     lo = np.concatenate([e.lower for e in effs])
@@ -788,7 +799,8 @@ def _refine_joint(nuis: dict[str, tuple], eff: Effect, theta, chosen: dict[str, 
         return [tuple(float(v) for v in th[sizes[i]:sizes[i + 1]]) for i in range(len(effs))]
 
     cache: dict[tuple, float] = {}
-    episodes = contact_episodes(train) if cfg.nuisance_contact_gap_weight > 0 else None
+    episodes = (contact_episodes(train if gap_segs is None else gap_segs, cfg)
+                if cfg.nuisance_contact_gap_weight > 0 else None)
 
     def loss(z) -> float:
         x = lo + np.clip(z, 0, 1) * scale

@@ -26,22 +26,27 @@ def _box(scale: float = 1.0) -> ObjectModel:
 
 
 def _segments(n_blocks: int = 6, noise: float = 2e-4, seed: int = 0) -> list[Segment]:
-    """Blocks of 8 frames at 30 Hz: the (true-size) box at a random yaw and place, the sphere approaching a face
-    along y or z (alternating), touching it on frames 3-4 (robot contact on frames 2-5; the smallest gap at the
-    touch), free before and after; the sphere path sampled at 240 Hz with ``noise`` (m)."""
+    """Blocks of 8 frames at 30 Hz: the (true-size) box at rest at a random yaw and place, the sphere approaching a
+    face along y or z (alternating), touching it on frames 3-4 and launching it at 0.3 m/s from frame 4 on (robot
+    contact on frames 2-5; the smallest gap at the touch); the sphere path sampled at 240 Hz with ``noise`` (m). The
+    last block has no launch: the sphere rests 3 mm from a face of the box at rest (robot contact by the classifier's
+    tolerance, no touch)."""
     rng = np.random.default_rng(seed)
     segs = []
-    for b in range(n_blocks):
+    for b in range(n_blocks + 1):
+        launch = b < n_blocks
         t = 0.1 * b + np.arange(8) / 30.0
         R = so3_exp(np.array([0.0, 0.0, rng.uniform(-np.pi, np.pi)]))
-        X = np.array([make_X(R, np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), 0.1]))] * 8)
         ax = 1 + b % 2
         sign = 1.0 if b % 4 < 2 else -1.0
-        off = np.array([3, 1.5, 0.5, 0.0, 0.0, 0.5, 1.5, 3]) * 1e-2  # distance from the touch, m
         n_O = np.zeros(3)
         n_O[ax] = sign
+        d = np.array([0, 0, 0, 0, 1, 2, 3, 4]) * 1e-2 if launch else np.zeros(8)  # the box pushed along −n, m
+        off = np.array([3, 1.5, 0.5, 0.0, 0.0, 0.5, 1.5, 3]) * 1e-2 if launch else np.full(8, 3e-3)  # sphere to face
+        p0 = np.array([rng.uniform(-0.2, 0.2), rng.uniform(-0.2, 0.2), 0.1])
+        X = np.array([make_X(R, p0 - d[k] * (R @ n_O)) for k in range(8)])
         p_O = (0.5 * EXTENTS[ax] + RADIUS + off)[:, None] * n_O + np.array([0.01, 0.0, 0.0])
-        p_W = p_O @ R.T + X[0, :3, 3]
+        p_W = np.einsum("ij,nj->ni", R, p_O) + X[:, :3, 3]
         tr = np.linspace(t[0] - 0.05, t[-1] + 0.05, 80)
         p_r = np.stack([np.interp(tr, t, p_W[:, i]) for i in range(3)], 1) + rng.normal(scale=noise, size=(80, 3))
         mode = np.array([FREE, FREE, ROBOT, ROBOT, ROBOT, ROBOT, FREE, FREE])
@@ -59,13 +64,14 @@ class _FlatEvaluator:
 
 def test_contact_gap_term_sees_the_hull_size():
     segs = _segments()
-    ep = contact_episodes(segs)
-    assert ep is not None and int(ep[3][-1]) + 1 == len(segs)  # one episode per block
+    cfg = ResidualConfig()
+    ep = contact_episodes(segs, cfg)
+    assert ep is not None and int(ep[3][-1]) + 1 == len(segs) - 1  # one per launching block; the resting sphere left out
     true, large = _box(), _box(1.06)
     assert contact_gap_term(true, ep) < 0.5e-3
     # 6 % too large: the touched faces (y: 47.5 mm, z: 32.5 mm from the centre) 2.85 and 1.95 mm out, the sphere inside
     assert abs(contact_gap_term(large, ep) - 0.5 * 0.06 * 0.5 * (EXTENTS[1] + EXTENTS[2])) < 0.5e-3
-    assert contact_episodes([dataclasses.replace(s, mode=np.full(8, FREE)) for s in segs]) is None
+    assert contact_episodes([dataclasses.replace(s, mode=np.full(8, FREE)) for s in segs], cfg) is None
     assert contact_gap_term(true, None) == 0.0
 
 
@@ -82,7 +88,7 @@ def test_nuisance_fit_takes_the_size_from_the_contact_gaps():
         k = int(np.argmax(np.abs(P[ax])))  # principal axis k is the box's axis ax
         assert abs(s[k] - 1 / 1.06) < 0.01, (ax, s)
     fitted = scale_model(large, s)
-    assert contact_gap_term(fitted, contact_episodes(segs)) < 0.5e-3
+    assert contact_gap_term(fitted, contact_episodes(segs, on)) < 0.5e-3
     # off (the default): the same flat dynamics give no reason to correct anything
     fix0, _, _ = _fit_nuisance(["geometry_scale"], large, {}, _FlatEvaluator(), segs, ResidualConfig(nuisance_maxiter=150))
     assert fix0 == {}
