@@ -375,6 +375,24 @@ def _print_fold_agreement(out) -> None:
         print(f"    {c.effect:16s} {state}: {fv}; agreement: {ag}", flush=True)
 
 
+def _print_corrections(out) -> None:
+    """Learned model: each fold's nuisance corrections (fitted before any effect) and the final refit's (with the
+    accepted effects, all units), geometry scale per principal axis, inertia factor, CoM shift (mm), table offset (mm)."""
+    def txt(c: dict) -> str:
+        if not c:
+            return "none kept"
+        g = [c.get(f"geometry_scale_{i}", 1.0) for i in (1, 2, 3)]
+        com = [1e3 * c.get(f"com_offset_{a}", 0.0) for a in "xyz"]
+        return (f"scale ({g[0]:.3f}, {g[1]:.3f}, {g[2]:.3f}), inertia x{c.get('inertia_scale', 1.0):.3f}, "
+                f"CoM ({com[0]:.1f}, {com[1]:.1f}, {com[2]:.1f}) mm, table {1e3 * c.get('table_offset', 0.0):.2f} mm")
+    nuis = out.by_mode.get("nuisance", {})
+    for f, fd in enumerate(nuis.get("folds", [])):
+        print(f"    corrections fold {f + 1}: {txt(fd.get('corrections', {}))}", flush=True)
+    rc = out.by_mode.get("refit", {}).get("corrections")
+    if rc is not None:
+        print(f"    corrections of the refit: {txt(rc)}", flush=True)
+
+
 def _print_lookalikes(out) -> None:
     """Rule 9b (docs/residuals.md §4): every round's verdict between look-alikes (printed only when the rule ran)."""
     for h in out.by_mode.get("rounds", []):
@@ -482,7 +500,9 @@ def strike(args) -> None:
                                       fit_maxiter=24, max_train_segments=10,
                                       nuisance=NUISANCE_LEARNED if args.learned_model else (), nuisance_maxiter=70,
                                       unit_statistic=args.unit_statistic, folds=args.folds, **_refute_setting(args), **_sim_settings(args),
-                                      **_path_settings(args))
+                                      **_path_settings(args),
+                                      **({} if args.contact_gap_weight is None
+                                         else {"nuisance_contact_gap_weight": args.contact_gap_weight}))
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
             if args.true_split:
@@ -556,6 +576,8 @@ def strike(args) -> None:
             if args.folds >= 2:
                 _print_fold_agreement(out)
             _print_lookalikes(out)
+            if args.learned_model:
+                _print_corrections(out)
     if args.true_split:
         return
     print(f"strike cases passing the issue #6 criteria (right effect alone, within 25 %, held-out error where it acts "
@@ -631,6 +653,9 @@ def main() -> None:
                          "sim.STRIKE_TOUCH_SPLIT, the contact starting at the touch); docs/residuals-findings.md")
     st.add_argument("--learned-model", action="store_true",
                     help="model with learned-model errors (size x 1.06, inertia x 1.3, CoM 5 mm off) and the nuisance refit")
+    st.add_argument("--contact-gap-weight", type=float, default=None, metavar="W",
+                    help="ResidualConfig.nuisance_contact_gap_weight: the nuisance fit's contact-gap term (absent: the "
+                         "config's default, 0 = off)")
     for sp in (r, s, lb, st):
         sp.add_argument("--unit-statistic", choices=("relative", "mean"), default="relative",
                         help="held-out test over units (docs/residuals.md §4 rule 2): relative = bound on the mean of "

@@ -94,6 +94,7 @@ class _Fold:
     held_frames0: list = field(default_factory=list)
     cur_frames: list = field(default_factory=list)
     nuisance: dict = field(default_factory=dict)
+    gap_segs: list = field(default_factory=list)  # the training blocks with the input model's modes (contact-gap term)
 
 
 def _flat(names_theta: dict) -> dict[str, float]:
@@ -268,7 +269,8 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                 sub = np.random.default_rng(cfg.seed + 99 + 1000 * f).choice(len(tr_n), cfg.max_nuisance_segments, replace=False)
                 tr_n = [tr_n[i] for i in sorted(sub)]
             fd.tr_n = tr_n
-            fix, e0, e1 = _fit_nuisance(nuis_names, input_model, dict(input_effects), ev, tr_n, cfg)
+            fd.gap_segs = list(fd.train)
+            fix, e0, e1 = _fit_nuisance(nuis_names, input_model, dict(input_effects), ev, tr_n, cfg, fd.gap_segs)
             fd.nuis_fix = dict(fix)
             fd.nuisance = {"train_error_before": e0, "train_error_after": e1, "train_blocks": len(tr_n)}
             if fix:
@@ -381,7 +383,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                     if not fd.nuis_fix:
                         continue
                     cand_nuis, theta = _refine_joint(fd.nuis_fix, eff, per[f]["theta"], fd.chosen, input_model,
-                                                     dict(input_effects), ev, fd.tr_n, cfg)
+                                                     dict(input_effects), ev, fd.tr_n, cfg, fd.gap_segs)
                     m_after, s_after = apply_effects(input_model, {**cand_nuis, **fd.chosen, name: theta})
                     per[f]["after_frames"] = ev.frame_split(m_after, {**input_effects, **s_after}, fd.held)
                     per[f]["e_train"] = float(ev.errors(m_after, {**input_effects, **s_after}, tr_e[f], per[f]["tr_masks"]).mean())
@@ -540,7 +542,8 @@ def final_refit(inputs: ResidualInputs, cfg: ResidualConfig, input_model: Object
         # fitted with the accepted effects in place (at their fold means), so that the corrections do not soak up
         # the effects first (the single split fits them before any effect is known)
         m_eff, s_eff = apply_effects(input_model, chosen)
-        fix, e0, e1 = _fit_nuisance(nuis_names, m_eff, {**input_effects, **s_eff}, ev, tr_n, cfg)
+        gap_segs = list(pool)  # every block, with the input model's modes (the contact-gap term's strikes)
+        fix, e0, e1 = _fit_nuisance(nuis_names, m_eff, {**input_effects, **s_eff}, ev, tr_n, cfg, gap_segs)
         nuis_fix = dict(fix)
         rep["nuisance"] = {"train_error_before": e0, "train_error_after": e1, "train_blocks": len(tr_n)}
         if fix:
@@ -566,7 +569,8 @@ def final_refit(inputs: ResidualInputs, cfg: ResidualConfig, input_model: Object
             continue
         theta, e_train = _fit(eff, theta_mean, model, base_effects, others, ev, tr, cfg)
         if nuis_fix:
-            nuis_fix, theta = _refine_joint(nuis_fix, eff, theta, others, input_model, dict(input_effects), ev, tr_n, cfg)
+            nuis_fix, theta = _refine_joint(nuis_fix, eff, theta, others, input_model, dict(input_effects), ev, tr_n, cfg,
+                                            gap_segs)
             model, fix_sim = apply_effects(input_model, nuis_fix)
             base_effects = {**input_effects, **fix_sim}
         refit[name] = eff.clip(theta)

@@ -79,7 +79,7 @@ from service.residuals.effects import (
     is_negligible,
     null_params,
 )
-from service.residuals.modes import FREE, IMPACT, classify, collision_vertices, mode_statistics, object_radius
+from service.residuals.modes import FREE, IMPACT, ROBOT, classify, collision_vertices, mode_statistics, object_radius, sphere_gaps
 from service.residuals.types import (
     MODES,
     EffectCandidate,
@@ -585,12 +585,66 @@ def _fit(effect: Effect, guess, base_model, base_effects, chosen, ev: Evaluator,
     return best, loss(best)
 
 
+def contact_episodes(segs: list[Segment], cfg: ResidualConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray] | None:
+    """The strike contacts of ``segs`` for ``contact_gap_term``: runs of consecutive tracked frames classified
+    ``robot_contact`` within a block that reach a launch of the object from rest (``launches`` on the block's frames:
+    a run meeting frames onset − 1 … onset + 1), where the sphere is known to have touched the object. Runs without a
+    launch are left out: the classifier's gap tolerance (``contact_tol_m``, with the hull as it is) also flags a
+    sphere resting or passing a few mm from the object, which says nothing about where the surface is. Returns the
+    frames' observed poses X_WO (F,4,4), the sphere centres p_WE (F,3) in W, m (interpolated at the frame times
+    from the block's robot path), the sphere radius, m, and the episode index of every frame (F,); None when there
+    is none."""
+    Xs, ps, ids, radius = [], [], [], None
+    n_ep = 0
+    for sg in segs:
+        if sg.robot is None:
+            continue
+        on = (np.asarray(sg.mode) == ROBOT) & np.asarray(sg.tracked, bool)
+        idx = np.flatnonzero(on)
+        if not len(idx):
+            continue
+        onsets = [k for k, _ in launches(sg.t, sg.X_obs, np.asarray(sg.tracked, bool), cfg)]
+        if not onsets:
+            continue
+        rb = sg.robot
+        for run in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
+            if not any(run[0] - 1 <= k <= run[-1] + 1 for k in onsets):
+                continue
+            Xs.append(sg.X_obs[run])
+            ps.append(np.stack([np.interp(sg.t[run], rb.t, rb.p_WE[:, i]) for i in range(3)], 1))
+            ids.append(np.full(len(run), n_ep))
+            n_ep += 1
+            radius = float(rb.radius)
+    if not Xs:
+        return None
+    return np.concatenate(Xs), np.concatenate(ps), radius, np.concatenate(ids)
+
+
+def contact_gap_term(model: ObjectModel, episodes) -> float:
+    """Mean over the strike contacts (``contact_episodes``) of |g_e|, m, where g_e is the smallest signed sphere-hull gap
+    (``modes.sphere_gaps``: face-plane distance of the sphere centre minus its radius, at the observed pose) over
+    the episode's frames: where the sphere pushes the object it touches the surface (g_e ≈ 0); a hull too large
+    along the contact normal leaves it inside (g_e < 0), one too small short of it. The smallest gap of an episode
+    is its frame nearest to the touch; the absolute mean (a median-like fit) keeps an episode without a frame at
+    the touch from pulling the size far. 0 without episodes."""
+    if episodes is None:
+        return 0.0
+    X, p, radius, ids = episodes
+    g = sphere_gaps(model, X, p, radius)
+    g_min = np.full(int(ids[-1]) + 1, np.inf)
+    np.minimum.at(g_min, ids, g)
+    return float(np.mean(np.abs(g_min)))
+
+
 def _fit_nuisance(names: list[str], model: ObjectModel, base_effects: dict, ev: Evaluator, train: list[Segment],
-                  cfg: ResidualConfig) -> tuple[dict[str, tuple], float, float]:
+                  cfg: ResidualConfig, gap_segs: list[Segment] | None = None) -> tuple[dict[str, tuple], float, float]:
     """Joint fit of the nuisance corrections (all their parameters at once, Nelder–Mead from "no change" in
     coordinates scaled to the bounds) minimising the mean error over all frames of the training blocks.
     Returns ({name: θ}, E_train before, E_train after); the corrections are kept only when the training
-    error falls by at least ``min_rel_improvement``, otherwise {} is returned."""
+    error falls by at least ``min_rel_improvement``, otherwise {} is returned. With ``nuisance_contact_gap_weight``
+    > 0 the objective (and the test of the fall) adds that weight × ``contact_gap_term`` of the corrected model on
+    the strike contacts of ``gap_segs`` (default: ``train``; the callers give all training blocks of the fold, of
+    which ``train`` is a sample: strikes are a minority of the blocks); E_train stays the rollout error."""
     effs = [REGISTRY[n] for n in names]
     lo = np.concatenate([e.lower for e in effs])
     hi = np.concatenate([e.upper for e in effs])
@@ -603,12 +657,19 @@ def _fit_nuisance(names: list[str], model: ObjectModel, base_effects: dict, ev: 
         th = np.clip(x, lo, hi)
         return {e.name: tuple(float(v) for v in th[sizes[i]:sizes[i + 1]]) for i, e in enumerate(effs)}
 
+    w_gap = cfg.nuisance_contact_gap_weight
+    episodes = contact_episodes(train if gap_segs is None else gap_segs, cfg) if w_gap > 0 else None
+    rollout: dict[tuple, float] = {}
+
     def loss(z) -> float:
         x = lo + np.clip(z, 0, 1) * scale
         key = tuple(np.round(x, 9))
         if key not in cache:
             m, sim = apply_effects(model, unpack(x))
             cache[key] = float(np.nanmean(ev.errors(m, {**base_effects, **sim}, train)))
+            if episodes is not None:  # the objective gets the contact-gap term; the reported error stays the rollout's
+                rollout[key] = cache[key]
+                cache[key] += w_gap * contact_gap_term(m, episodes)
         return cache[key]
 
     z0 = (x0 - lo) / scale
@@ -618,16 +679,22 @@ def _fit_nuisance(names: list[str], model: ObjectModel, base_effects: dict, ev: 
                    options={"maxfev": cfg.nuisance_maxiter, "initial_simplex": np.array(simplex), "xatol": 1e-3, "fatol": 1e-7})
     z = np.clip(res.x, 0, 1)
     e1 = loss(z)
+    if episodes is not None:  # kept when the objective (rollout + gap term) falls by the margin; reported: the rollout
+        keep = e1 < (1.0 - cfg.min_rel_improvement) * e0
+        r0, r1 = (rollout[tuple(np.round(lo + np.clip(v, 0, 1) * scale, 9))] for v in (z0, z))
+        return (unpack(lo + z * scale), r0, r1) if keep else ({}, r0, r0)
     if not (e1 < (1.0 - cfg.min_rel_improvement) * e0):
         return {}, e0, e0
     return unpack(lo + z * scale), e0, e1
 
 
 def _refine_joint(nuis: dict[str, tuple], eff: Effect, theta, chosen: dict[str, tuple], input_model: ObjectModel,
-                  input_effects: dict, ev: Evaluator, train: list[Segment], cfg: ResidualConfig) -> tuple[dict[str, tuple], tuple]:
+                  input_effects: dict, ev: Evaluator, train: list[Segment], cfg: ResidualConfig,
+                  gap_segs: list[Segment] | None = None) -> tuple[dict[str, tuple], tuple]:
     """Refit the nuisance corrections together with a candidate effect (Nelder–Mead from the current values,
     all frames of the training blocks), so that the effect is not biased by corrections that soaked up part
-    of it before it was added (and the corrections are not biased by the missing effect)."""
+    of it before it was added (and the corrections are not biased by the missing effect). With
+    ``nuisance_contact_gap_weight`` the objective has ``_fit_nuisance``'s contact-gap term (on ``gap_segs``)."""
     effs = [REGISTRY[n] for n in nuis] + [eff]
     start = [nuis[n] for n in nuis] + [tuple(theta)]
     lo = np.concatenate([e.lower for e in effs])
@@ -641,6 +708,8 @@ def _refine_joint(nuis: dict[str, tuple], eff: Effect, theta, chosen: dict[str, 
         return [tuple(float(v) for v in th[sizes[i]:sizes[i + 1]]) for i in range(len(effs))]
 
     cache: dict[tuple, float] = {}
+    episodes = (contact_episodes(train if gap_segs is None else gap_segs, cfg)
+                if cfg.nuisance_contact_gap_weight > 0 else None)
 
     def loss(z) -> float:
         x = lo + np.clip(z, 0, 1) * scale
@@ -650,6 +719,8 @@ def _refine_joint(nuis: dict[str, tuple], eff: Effect, theta, chosen: dict[str, 
             fix = {e.name: parts[i] for i, e in enumerate(effs[:-1])}
             m, sim = apply_effects(input_model, {**fix, **chosen, eff.name: parts[-1]})
             cache[key] = float(np.nanmean(ev.errors(m, {**input_effects, **sim}, train)))
+            if episodes is not None:
+                cache[key] += cfg.nuisance_contact_gap_weight * contact_gap_term(m, episodes)
         return cache[key]
 
     z0 = (x0 - lo) / scale

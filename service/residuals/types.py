@@ -168,6 +168,13 @@ class ResidualConfig:
     nuisance: tuple[str, ...] | None = None
     nuisance_maxiter: int = 80  # Nelder-Mead evaluations of the joint nuisance fit
     max_nuisance_segments: int = 24  # training blocks of the nuisance fit (and of the joint refit)
+    # Contact-gap term of the nuisance fit (0 = off): where the robot touches the object the measured sphere centre is
+    # one radius from the object's surface (at the tracked pose), so a geometry correction that leaves the sphere
+    # inside the hull there (or short of it) is contradicted by the kinematics, whatever the dynamics. The weight
+    # (m of rollout error per m of gap) on ``loop.contact_gap_term`` (mean over the robot-contact episodes of the
+    # training blocks of |smallest sphere-hull gap|), added to the training error of the nuisance fit and of the
+    # joint refit (docs/residuals-findings.md, "The hull's size from where the sphere touches it")
+    nuisance_contact_gap_weight: float = 0.0
     # No effect is judged when the (corrected) model's held-out error exceeds this fraction of the object
     # radius, or when a nuisance correction had to go to its bound: such a model does not explain the
     # motion, and any effect would only compensate for it.
@@ -284,7 +291,7 @@ class ResidualConfig:
         for name in ("sim_substep_s", "rest_speed", "impact_dv", "sliding_speed", "max_base_error_rel"):
             if not (is_num(getattr(self, name)) and 0 < getattr(self, name) < np.inf):
                 bad(name, "a finite number > 0")
-        for name in ("min_rel_improvement", "tie_tol_rel", "contact_tol_m"):
+        for name in ("min_rel_improvement", "tie_tol_rel", "contact_tol_m", "nuisance_contact_gap_weight"):
             if not (is_num(getattr(self, name)) and 0 <= getattr(self, name) < np.inf):
                 bad(name, "a finite number >= 0")
 
