@@ -151,6 +151,15 @@ def ray_inliers(A: np.ndarray, B: np.ndarray, Xs: np.ndarray, cam: tuple[np.ndar
     the ray is its image location (about a pixel), along it the depth reading (a few millimetres at 0.8 m): one
     isotropic ball is either too wide across or too narrow along."""
     K, X_CA, px = cam
+    d2, dz = ray_residuals(A, B, Xs, K, X_CA)
+    return (d2 < px * px) & (np.abs(dz) < thr)
+
+
+def ray_residuals(A: np.ndarray, B: np.ndarray, Xs: np.ndarray, K: np.ndarray, X_CA: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Residuals of ``ray_inliers``: for every hypothesis Xs[m] (M,4,4) with b ≈ X a and a (N,3) measured by camera C
+    (intrinsics K, X_CA the camera from a's frame), the squared image distance (px², (M,N)) of the prediction X⁻¹ b
+    from a, and its depth minus a's along the camera's z (m, (M,N))."""
     Ac = A @ X_CA[:3, :3].T + X_CA[:3, 3]
     Rt = np.swapaxes(Xs[:, :3, :3], 1, 2)  # X⁻¹ = (Rᵀ, −Rᵀ t)
     M = X_CA[None, :3, :3] @ Rt  # rotation of b into C
@@ -159,7 +168,7 @@ def ray_inliers(A: np.ndarray, B: np.ndarray, Xs: np.ndarray, cam: tuple[np.ndar
     z = np.maximum(Pc[..., 2], 1e-6)
     du = K[0, 0] * (Pc[..., 0] / z - Ac[None, :, 0] / Ac[None, :, 2])
     dv = K[1, 1] * (Pc[..., 1] / z - Ac[None, :, 1] / Ac[None, :, 2])
-    return (du * du + dv * dv < px * px) & (np.abs(Pc[..., 2] - Ac[None, :, 2]) < thr)
+    return du * du + dv * dv, Pc[..., 2] - Ac[None, :, 2]
 
 
 def _rotate_all(R: np.ndarray, A: np.ndarray) -> np.ndarray:

@@ -10,7 +10,8 @@ Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth,
    matches, whose prediction carries the keyframe pose's error);
 3. refinement: robust point-to-plane ICP of p_W against the object model built so far (keyframe points
    merged in O on a voxel grid), with the RANSAC inliers as point-to-point terms; from every candidate, the
-   best fit (inlier fraction, then residual) wins;
+   best fit (inlier fraction, then residual) wins (``_register_candidates``; with ``track_ransac_both``, off, the
+   1 cm ball's consensus of the same matches is one more start with its own inliers, ``_ball_hypothesis``);
 4. lost-track test: too few points, inlier fraction < min_inlier_frac or residual > max_rmse. Lost frames are
    re-localised from the last tracked pose and against all keyframes' features;
 5. keyframes: a well-tracked frame far (angle/translation) from every keyframe or showing new surface adds
@@ -49,7 +50,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from service.tracking.geometry import (IcpResult, backproject, crease_points, depth_continuous, icp,
-                                       pixel_normals, ransac_rigid)
+                                       pixel_normals, ransac_rigid, ray_residuals)
 from service.tracking.types import TrackingConfig
 from service.tracking.voxels import group_sums, voxel_groups
 from service.transforms import X_inv, make_X, pose_distance, so3_exp, so3_log
@@ -373,22 +374,20 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         # features: previous tracked frame and keyframes
         fW, fO, from_kf = _feature_corr(o, obs[a], X[a], keyframes, lost=(a != i - 1), sources=True)
         feat_W = feat_O = None
+        other = None  # with track_ransac_both: (start, inliers W, inliers O) of the 1 cm ball's consensus
         if len(fW) >= max(6, cfg.feat_min_inliers):
-            Xr, inl = _feature_motion(fW, fO, cfg, rng, cam=(session.K, X_CW), from_kf=from_kf)
+            Xr, inl, kind = _feature_motion(fW, fO, cfg, rng, cam=(session.K, X_CW), from_kf=from_kf, kind=True)
             if Xr is not None:
                 Xc = X_inv(Xr)  # fO = Xr fW -> Xr = X_OW
                 cands.append(Xc)
                 feat_W, feat_O = fW[inl], fO[inl]
                 n_feat[i, 0] = len(feat_W)
-        best = None
-        for Xc in cands:
-            if best is not None and _good(best, cfg):
-                dt, da = pose_distance(best.X_WO, Xc)
-                if dt < 0.01 and da < 5.0:
-                    continue  # this start converges to the pose already found
-            r = icp(o.P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=o.N_W, **icp_kw)
-            if _better(r, best):
-                best = r
+                if cfg.track_ransac_both and kind == "camera":
+                    other = _ball_hypothesis(fW, fO, inl, cfg, rng)
+        best, by_other = _register_candidates(o.P_W, o.N_W, cands, feat_W, feat_O, other, model, cfg, icp_kw,
+                                              matches=(fW, fO, session.K, X_CW))
+        if by_other:
+            n_feat[i, 0] = len(other[1])
         if a != i - 1 and not _good(best, cfg):
             # re-localisation: wider search from the last tracked pose and every keyframe pose
             for kf in keyframes[::-1][:8]:
@@ -1118,6 +1117,46 @@ def _model_from(keyframes: list[Keyframe], voxel: float) -> ObjectModel:
     return ObjectModel.build(voxel, parts)
 
 
+def _register_candidates(P_W: np.ndarray, N_W: np.ndarray, cands: list[np.ndarray], feat_W: np.ndarray | None,
+                         feat_O: np.ndarray | None, other: tuple | None, model: ObjectModel, cfg: TrackingConfig,
+                         icp_kw: dict, matches: tuple | None = None) -> tuple[IcpResult, bool]:
+    """The loop's candidate step: ICP of the frame's points P_W (N,3) (normals N_W, W) to the model from every start
+    X_WO (4,4) of ``cands`` in turn, with the consensus' inliers feat_W ↔ feat_O (W, O) as point-to-point terms; a start
+    within 1 cm and 5° of a good result already found is skipped; the best by ``_fit_score`` (inlier fraction and RMSE
+    of the depth points only) wins. ``other`` (start, inliers W, inliers O) of ``track_ransac_both`` is one more start
+    refined with its own inliers, never skipped (its feature terms differ); it replaces the best by ``_fit_score``, or
+    with ``track_ransac_both_score`` "reproj" and both results good by the lower ``_match_cost`` of all the frame's
+    matches = (fW (W), fO (O), K, X_CW). Returns the result and whether it is ``other``'s."""
+    best, by_other = None, False
+    for Xc in cands:
+        if best is not None and _good(best, cfg):
+            dt, da = pose_distance(best.X_WO, Xc)
+            if dt < 0.01 and da < 5.0:
+                continue  # this start converges to the pose already found
+        r = icp(P_W, Xc, model.tree, model.Q, model.N, feat_W=feat_W, feat_O=feat_O, N_src=N_W, **icp_kw)
+        if _better(r, best):
+            best = r
+    if other is not None:
+        r = icp(P_W, other[0], model.tree, model.Q, model.N, feat_W=other[1], feat_O=other[2], N_src=N_W, **icp_kw)
+        if cfg.track_ransac_both_score == "reproj" and matches is not None and _good(r, cfg) and _good(best, cfg):
+            if _match_cost(r.X_WO, matches, cfg) < _match_cost(best.X_WO, matches, cfg):
+                best, by_other = r, True
+        elif _better(r, best):
+            best, by_other = r, True
+    return best, by_other
+
+
+def _match_cost(X_WO: np.ndarray, matches: tuple, cfg: TrackingConfig) -> float:
+    """The truncated cost (MSAC) of pose X_WO (4,4) over every ORB correspondence of the frame, matches = (fW (N,3)
+    current keypoint in W, fO (N,3) the same point in O, K (3,3), X_CW (4,4)): Σ min((d/px)² + (dz/thr)², 1), d the
+    image distance of the keypoint from its prediction (pixels), dz its depth difference (m), px = track_ransac_px,
+    thr = ransac_thr — the camera consensus' own band, each match's residual in units of its sensor noise across and
+    along the ray, an outlier costing 1 whichever consensus kept or dropped it."""
+    fW, fO, K, X_CW = matches
+    d2, dz = ray_residuals(fW, fO, X_inv(X_WO)[None], K, X_CW)
+    return float(np.minimum(d2[0] / cfg.track_ransac_px**2 + (dz[0] / cfg.ransac_thr) ** 2, 1.0).sum())
+
+
 def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: list[Keyframe], lost: bool,
                   sources: bool = False) -> tuple[np.ndarray, ...]:
     """3-D correspondences (current point in W, same point in O) from ORB matches: to the previous tracked frame
@@ -1146,8 +1185,8 @@ def _feature_corr(o: FrameObs, prev: FrameObs, X_prev: np.ndarray, keyframes: li
 
 
 def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np.random.Generator,
-                    cam: tuple[np.ndarray, np.ndarray] | None = None, from_kf: np.ndarray | None = None
-                    ) -> tuple[np.ndarray | None, np.ndarray]:
+                    cam: tuple[np.ndarray, np.ndarray] | None = None, from_kf: np.ndarray | None = None,
+                    kind: bool = False) -> tuple:
     """RANSAC rigid fit (X_OW, inlier mask) of the tracking loop's ORB correspondences fW (current point, W) ↔ fO
     (same point, O): with ``track_ransac_px`` set and ``cam`` = (K (3,3), X_CW (4,4)) given, first in the camera
     (within track_ransac_px pixels across the ray, ransac_thr along it: ``geometry.ray_inliers``); then at
@@ -1156,7 +1195,11 @@ def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np
     turns under it; within the wide threshold of a surface that moved less than it (a 3 cm egg turning 5°/frame:
     2.6 mm) it joins the consensus and pulls the fit toward no motion. With ``track_ransac_kf_px`` and ``from_kf``
     (N,) bool (the match is to a keyframe) given, the keyframe matches' band across the ray is that instead: their
-    prediction carries the keyframe pose's error relative to the previous frame's besides the keypoint's noise."""
+    prediction carries the keyframe pose's error relative to the previous frame's besides the keypoint's noise.
+    With ``kind`` also the consensus that gave the fit: "camera", "tight" or "ball"."""
+    def out(Xr, inl, k):
+        return (Xr, inl, k) if kind else (Xr, inl)
+
     if cfg.track_ransac_px is not None and cam is not None:
         px = cfg.track_ransac_px
         if cfg.track_ransac_kf_px is not None and from_kf is not None:
@@ -1164,12 +1207,25 @@ def _feature_motion(fW: np.ndarray, fO: np.ndarray, cfg: TrackingConfig, rng: np
         Xr, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers,
                                cam=(cam[0], cam[1], px))
         if Xr is not None:
-            return Xr, inl
+            return out(Xr, inl, "camera")
     if cfg.track_ransac_thr is not None:
         Xr, inl = ransac_rigid(fW, fO, cfg.track_ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
         if Xr is not None:
-            return Xr, inl
-    return ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
+            return out(Xr, inl, "tight")
+    return out(*ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers), "ball")
+
+
+def _ball_hypothesis(fW: np.ndarray, fO: np.ndarray, inl_cam: np.ndarray, cfg: TrackingConfig,
+                     rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The second hypothesis of ``track_ransac_both``: the RANSAC consensus of the same ORB correspondences fW (W) ↔
+    fO (O) in the isotropic ``ransac_thr`` ball, as (start X_WO (4,4), its inliers in W (n,3), in O (n,3)); None when
+    it finds fewer than ``feat_min_inliers`` or keeps exactly the camera consensus' inliers ``inl_cam`` (N,) bool (the
+    same feature terms: the candidates already cover it). The camera consensus follows a fast turn that the ball's
+    lags (outline keypoints within 1 cm); the ball keeps the keyframe matches a chain's lag puts past 2 px (a push)."""
+    Xb, inl = ransac_rigid(fW, fO, cfg.ransac_thr, rng=rng, min_inliers=cfg.feat_min_inliers)
+    if Xb is None or np.array_equal(inl, inl_cam):
+        return None
+    return X_inv(Xb), fW[inl], fO[inl]
 
 
 def interpolate_untracked(X_WO: np.ndarray, tracked: np.ndarray) -> np.ndarray:

@@ -99,6 +99,15 @@ class TrackingConfig:
     # consensus keeps the previous frame's matches and drops a third of the right keyframe matches, so a push's lag is
     # no longer pulled back to the keyframes (docs/tracking.md, "Where else the camera consensus loses"). Off.
     track_ransac_kf_px: float | None = None
+    # with track_ransac_px: the 1 cm ball's consensus of the same matches as a second hypothesis besides the camera's:
+    # its pose is one more ICP start, refined with its own inliers as the feature terms, and the candidate score (the
+    # depth points' inlier fraction and RMSE, tracker._fit_score) picks. Off: the camera consensus alone
+    # (docs/tracking.md, "Both consensuses as candidate starts")
+    track_ransac_both: bool = False
+    # with track_ransac_both, what picks between the two hypotheses' results: "depth" (the candidate score) or
+    # "reproj" (when both are good: the lower truncated cost of every ORB match in units of the camera consensus' band,
+    # tracker._match_cost; the depth score cannot tell them apart, docs/tracking.md)
+    track_ransac_both_score: str = "depth"
     min_inlier_frac: float = 0.35  # below: lost track
     max_rmse: float = 0.006  # above: lost track
     max_speed: float = 1.5  # a pose farther than this (m/s) or
@@ -454,6 +463,11 @@ class TrackingConfig:
         for name in ("kf_still_speed", "kf_still_tilt_deg", "track_ransac_thr"):
             if getattr(self, name) is not None and not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be None or >= 0, not {getattr(self, name)!r}")
+        if not isinstance(self.track_ransac_both, bool):
+            raise ValueError(f"TrackingConfig.track_ransac_both must be a bool, not {self.track_ransac_both!r}")
+        if self.track_ransac_both_score not in ("depth", "reproj"):
+            raise ValueError("TrackingConfig.track_ransac_both_score must be 'depth' or 'reproj', "
+                             f"not {self.track_ransac_both_score!r}")
         for name in ("track_ransac_px", "track_ransac_kf_px"):
             v = getattr(self, name)
             if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not v > 0):
