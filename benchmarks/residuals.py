@@ -94,7 +94,7 @@ def _config_json(text: str) -> dict:
     unknown = sorted(set(cfg) - {f.name for f in dataclasses.fields(ResidualConfig)})
     if unknown:
         raise argparse.ArgumentTypeError(f"not ResidualConfig fields: {', '.join(unknown)}")
-    clash = sorted(set(cfg) & {"contact_breaking_m", "contact_persist_m", "restitution_threshold_mps", "candidates", "folds", "unit_statistic",
+    clash = sorted(set(cfg) & {"contact_breaking_m", "contact_persist_m", "restitution_threshold_mps", "restitution_follow_frames", "candidates", "folds", "unit_statistic",
                                "lookalike_refute", "max_train_segments", "fit_maxiter", "seed"})
     if clash:
         raise argparse.ArgumentTypeError(f"set by the benchmark or its own flags, not by --config: {', '.join(clash)}")
@@ -131,6 +131,8 @@ def _sim_settings(args) -> dict:
         out["touch_split"] = args.touch_split
     if getattr(args, "restitution_threshold", None) is not None:  # no bounce below this closing speed (default 0.05)
         out["restitution_threshold_mps"] = args.restitution_threshold
+    if getattr(args, "restitution_follow_frames", None) is not None:  # follow-through launch blocks out of restitution's
+        out["restitution_follow_frames"] = args.restitution_follow_frames
     return out
 
 
@@ -683,6 +685,10 @@ def main() -> None:
                         help="relative normal speed in m/s below which the loop's simulator gives a contact no bounce "
                              "(ResidualConfig.restitution_threshold_mps; default: the config's, 0.05; the synthetic "
                              "lab keeps Bullet's 0.2; docs/residuals-findings.md 'Restitution on strikes as a test')")
+        sp.add_argument("--restitution-follow-frames", default=None, metavar="N", type=int,
+                        help="a launch block whose robot contact lasts more than N frames from the onset is not one of "
+                             "restitution's blocks (ResidualConfig.restitution_follow_frames; default: the config's, off; "
+                             "docs/residuals-findings.md 'Restitution without the follow-throughs')")
     args = ap.parse_args()
     # refused before any session is made (naming the flag), not by a traceback from the loop's config
     if args.folds < 1:
@@ -709,6 +715,11 @@ def main() -> None:
             ResidualConfig(restitution_threshold_mps=args.restitution_threshold)
         except ValueError as e:
             ap.error(f"--restitution-threshold: {e}")
+    if getattr(args, "restitution_follow_frames", None) is not None:
+        try:
+            ResidualConfig(restitution_follow_frames=args.restitution_follow_frames)
+        except ValueError as e:
+            ap.error(f"--restitution-follow-frames: {e}")
     if getattr(args, "candidates", None):
         from service.residuals.effects import REGISTRY
 

@@ -105,6 +105,7 @@ class Segment:
     v0: np.ndarray  # (3,)
     w0: np.ndarray  # (3,)
     robot: RobotPath | None
+    follow_through: bool = False  # a launch block the sphere pushes on (``restitution_follow_frames``): no restitution
 
 
 def local_quadratic(p: np.ndarray, half: int) -> np.ndarray:
@@ -275,6 +276,14 @@ def launches(t: np.ndarray, X: np.ndarray, tracked: np.ndarray, cfg: ResidualCon
     return out
 
 
+def follow_frames(mode: np.ndarray, tracked: np.ndarray, onset: int) -> int:
+    """Tracked ``robot_contact`` frames of a launch block from the launch's ``onset`` (frame index in the block) on:
+    the strike's contact and any re-touch of the sphere catching up with the object (the count ``--per-block`` of
+    ``benchmarks/residuals.py`` prints, there over the whole block)."""
+    on = (np.asarray(mode) == ROBOT) & np.asarray(tracked, bool)
+    return int(on[max(onset, 0):].sum())
+
+
 def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: ResidualConfig) -> list[Segment]:
     """Non-overlapping rollout blocks of ``segment_s`` (auto: 0.15 s, 0.3 s with a robot) along every trajectory.
 
@@ -305,6 +314,7 @@ def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: Residual
         mode = modes[k]
         events = launches(t, X, tracked, cfg) if robot is not None else []
         ev_start = {max(a - cfg.launch_lead, 0): b for a, b in events}
+        ev_onset = {max(a - cfg.launch_lead, 0): a for a, b in events}
         starts = sorted(ev_start)
         i = min(kfit // 2, max(n - kfit, 0))  # first block starts where a centred fit exists
         while i < n - 1:
@@ -344,7 +354,9 @@ def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: Residual
                 dt = float(np.median(np.diff(t[w0:max(w1, w0 + 2)])))
                 h = dt / max(1, math.ceil(dt / cfg.sim_substep_s - 1e-9))
                 X0, v0, om0 = start_state(t[w0:w1], X[w0:w1], at, h)
-                segs.append(Segment(k, i, j, t[i:j], X[i:j], tracked[i:j], mode[i:j], X0, v0, om0, robot))
+                follow = (cfg.restitution_follow_frames is not None and i in ev_start
+                          and follow_frames(mode[i:j], tracked[i:j], ev_onset[i] - i) > cfg.restitution_follow_frames)
+                segs.append(Segment(k, i, j, t[i:j], X[i:j], tracked[i:j], mode[i:j], X0, v0, om0, robot, follow))
             i = j if ok else i + 1
     return segs
 
@@ -486,7 +498,9 @@ class Evaluator:
 def effect_mask(seg: Segment, effect: Effect) -> np.ndarray:
     """(T,) frames of a block where the effect is judged: frames in its modes; for effects acting at
     impacts (restitution), every frame from the first of its frames on (the bounce or the launch follows the
-    impact or strike frame)."""
+    impact or strike frame); none in a launch block the sphere follows through (``Segment.follow_through``)."""
+    if "impact" in effect.modes and seg.follow_through:
+        return np.zeros(len(seg.t), bool)
     m = np.isin(seg.mode, [MODES.index(x) for x in effect.modes]) & seg.tracked
     if "impact" in effect.modes:
         hit = np.flatnonzero(np.isin(seg.mode, [MODES.index(x) for x in effect.modes]))
