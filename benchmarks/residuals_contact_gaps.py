@@ -34,7 +34,7 @@ for seed in [int(s) for s in sys.argv[2:]]:
     segs = L.make_segments(inputs, modes, cfg)
     ep = L.contact_episodes(segs, cfg); X, p, r, ids = ep
     def gm(m):
-        g = sphere_gaps(m, X, p, r); out = np.full(ids[-1] + 1, np.inf); np.minimum.at(out, ids, g); return out
+        return L.episode_gaps(m, ep)
     P = principal_axes(model); p_O = np.einsum("nji,nj->ni", X[:, :3, :3], p - X[:, :3, 3]) - model.com_O
     gl = sphere_gaps(model, X, p, r)
     ax = np.array([int(np.argmax(np.abs(p_O[ids == e][np.argmin(gl[ids == e])] @ P))) for e in range(ids[-1] + 1)])

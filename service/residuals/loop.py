@@ -643,11 +643,17 @@ def contact_gap_term(model: ObjectModel, episodes) -> float:
     the touch from pulling the size far. 0 without episodes."""
     if episodes is None:
         return 0.0
+    return float(np.mean(np.abs(episode_gaps(model, episodes))))
+
+
+def episode_gaps(model: ObjectModel, episodes) -> np.ndarray:
+    """(E,) smallest signed sphere-hull gap, m, of each strike contact of ``episodes`` (``contact_episodes``) for
+    ``model`` at the observed poses (``modes.sphere_gaps``; < 0: the sphere inside the hull)."""
     X, p, radius, ids = episodes
     g = sphere_gaps(model, X, p, radius)
     g_min = np.full(int(ids[-1]) + 1, np.inf)
     np.minimum.at(g_min, ids, g)
-    return float(np.mean(np.abs(g_min)))
+    return g_min
 
 
 def _fit_nuisance(names: list[str], model: ObjectModel, base_effects: dict, ev: Evaluator, train: list[Segment],
