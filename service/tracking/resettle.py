@@ -237,16 +237,13 @@ def face_offsets(X: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, P_W: np.ndarra
             faces.append((n, Qw[sel], P_W[selP]))
     if not faces:
         return X
-    Rz = np.array([[1.0, -0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # no turn about the vertical (a yaw of 0)
-    ctr = Qw.mean(0)
-    X2 = make_X(Rz @ R, Rz @ (t - ctr) + ctr)
+    X2 = X.copy()
     A, b = [], []
     for n, Qf, Pf in faces:
-        n2 = Rz @ n
-        d_m = float(np.median(((Qf - ctr) @ Rz.T + ctr) @ n2))
-        d_f = float(np.median(Pf @ n2))
+        d_m = float(np.median(Qf @ n))
+        d_f = float(np.median(Pf @ n))
         if abs(d_f - d_m) <= max_shift:
-            A.append(n2[:2])
+            A.append(n[:2])
             b.append(d_f - d_m)
     if A:
         sol, *_ = np.linalg.lstsq(np.array(A), np.array(b), rcond=None)
