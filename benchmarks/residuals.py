@@ -132,8 +132,20 @@ def _sim_settings(args) -> dict:
     if getattr(args, "restitution_threshold", None) is not None:  # no bounce below this closing speed (default 0.05)
         out["restitution_threshold_mps"] = args.restitution_threshold
     if getattr(args, "restitution_follow_frames", None) is not None:  # follow-through launch blocks out of restitution's
-        out["restitution_follow_frames"] = args.restitution_follow_frames
+        v = args.restitution_follow_frames
+        out["restitution_follow_frames"] = None if v == "off" else v
     return out
+
+
+def _int_or_off(text: str) -> int | str:
+    """argparse type of ``--restitution-follow-frames``: an integer, or 'off' (None in the config); the range is the
+    config's check."""
+    if str(text).lower() == "off":
+        return "off"
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer or 'off', not {text!r}") from None
 
 
 def _ratio(after: float, before: float) -> float:
@@ -685,10 +697,10 @@ def main() -> None:
                         help="relative normal speed in m/s below which the loop's simulator gives a contact no bounce "
                              "(ResidualConfig.restitution_threshold_mps; default: the config's, 0.05; the synthetic "
                              "lab keeps Bullet's 0.2; docs/residuals-findings.md 'Restitution on strikes as a test')")
-        sp.add_argument("--restitution-follow-frames", default=None, metavar="N", type=int,
+        sp.add_argument("--restitution-follow-frames", default=None, metavar="N", type=_int_or_off,
                         help="a launch block whose robot contact lasts more than N frames from the onset is not one of "
-                             "restitution's blocks (ResidualConfig.restitution_follow_frames; default: the config's, off; "
-                             "docs/residuals-findings.md 'Restitution without the follow-throughs')")
+                             "restitution's blocks, or 'off' (ResidualConfig.restitution_follow_frames; default: the "
+                             "config's, 2; docs/residuals-findings.md 'Restitution without the follow-throughs')")
     args = ap.parse_args()
     # refused before any session is made (naming the flag), not by a traceback from the loop's config
     if args.folds < 1:
@@ -715,7 +727,7 @@ def main() -> None:
             ResidualConfig(restitution_threshold_mps=args.restitution_threshold)
         except ValueError as e:
             ap.error(f"--restitution-threshold: {e}")
-    if getattr(args, "restitution_follow_frames", None) is not None:
+    if getattr(args, "restitution_follow_frames", None) not in (None, "off"):
         try:
             ResidualConfig(restitution_follow_frames=args.restitution_follow_frames)
         except ValueError as e:

@@ -190,12 +190,13 @@ class ResidualConfig:
     launch_rest_speed: float = 0.05  # m/s, below this before the onset (and when settled)
     launch_lead: int = 2  # frames of rest at the start of a launch block
     launch_max_s: float = 1.0  # longest launch block, s
-    # restitution's blocks without the follow-throughs (None = off, the default): a launch block whose robot contact at
-    # the onset lasts more than this many frames from the onset on is not one of restitution's blocks. A struck box
+    # restitution's blocks without the follow-throughs (2, on by default; None = off): a launch block whose robot contact
+    # at the onset lasts more than this many frames from the onset on is not one of restitution's blocks. A struck box
     # leaves the sphere at e·v (0.08-0.17 m/s for e = 0.3 at the lab's 0.26-0.55 m/s strikes) and is past the
     # classifier's 4 mm gap within 1-2 frames at 30 Hz; a sphere that stays 3 or more frames pushes the box on, and its
-    # own speed, not the bounce, sets the launch (docs/residuals-findings.md, "Restitution without the follow-throughs")
-    restitution_follow_frames: int | None = None
+    # own speed, not the bounce, sets the launch (docs/residuals-findings.md, "Restitution without the follow-throughs"
+    # and "... on fresh strike sessions": on by default since the latter)
+    restitution_follow_frames: int | None = 2
     # window of the local quadratic fit that smooths the measured sphere path before the rollouts, s (0: off)
     robot_smooth_s: float = 0.08
     # the weights of that fit (ROBOT_SMOOTH_WEIGHTS; docs/residuals-findings.md, "The sphere path's velocity noise at the

@@ -1,7 +1,7 @@
 """Restitution's blocks without the follow-throughs (``ResidualConfig.restitution_follow_frames``): a launch block
 whose robot contact lasts more than N frames from the onset is not one of restitution's blocks (the sphere pushes
 the box on, so its speed, not the bounce, sets the launch); a clean strike's block stays, and the other effects'
-blocks do not change."""
+blocks do not change. On by default (N = 2); None turns it off."""
 
 import dataclasses
 
@@ -54,7 +54,7 @@ def _session(contacts: tuple[int, ...]):
 @pytest.mark.parametrize("n_follow", [2, 3])
 def test_follow_through_blocks_leave_restitution_only(n_follow):
     inputs, modes = _session((1, 2, 3, 6, 2, 10))
-    base = ResidualConfig()
+    base = ResidualConfig(restitution_follow_frames=None)  # off
     off = make_segments(inputs, modes, base)
     on = make_segments(inputs, modes, dataclasses.replace(base, restitution_follow_frames=n_follow))
     assert [(s.start, s.stop) for s in off] == [(s.start, s.stop) for s in on]  # the blocks do not change
@@ -76,3 +76,13 @@ def test_config_refuses_a_bad_follow_frames():
         with pytest.raises(ValueError, match="restitution_follow_frames"):
             ResidualConfig(restitution_follow_frames=v)
     assert ResidualConfig(restitution_follow_frames=2).restitution_follow_frames == 2
+
+
+def test_on_by_default_at_two_frames():
+    """The default (on since "Restitution without the follow-throughs on fresh strike sessions"): N = 2, and a
+    default config leaves out the blocks with contacts of 3, 6 and 10 frames, keeping those of 1 and 2."""
+    assert ResidualConfig().restitution_follow_frames == 2
+    inputs, modes = _session((1, 2, 3, 6, 2, 10))
+    segs = make_segments(inputs, modes, ResidualConfig())
+    launch = {10 + 30 * k - 2 - ResidualConfig().launch_lead: c for k, c in enumerate((1, 2, 3, 6, 2, 10))}
+    assert {s.start for s in segs if s.follow_through} == {a for a, c in launch.items() if c > 2}
