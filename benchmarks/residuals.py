@@ -524,6 +524,12 @@ def strike(args) -> None:
                     print(f"{case:15s} seed {seed}: {_true_split(ls, model, name, truth, cfg, args.per_block)}", flush=True)
                 continue
             out = run(ResidualInputs(model, (ls.trajectory,), ls.table_height, robot=(ls.robot,)), cfg)
+            if args.save_outputs:
+                import pickle
+
+                Path(args.save_outputs).mkdir(parents=True, exist_ok=True)
+                with open(Path(args.save_outputs) / f"{case}_{seed}.pkl", "wb") as fh:
+                    pickle.dump(out, fh)
             sb = out.by_mode["rollout_before"]["sliding"]["pos_err_m"]
             sa = out.by_mode["rollout_after"]["sliding"]["pos_err_m"]
             # with the nuisance refit a hidden CoM shift is a correction, not a candidate (docs/residuals.md §3b):
@@ -648,6 +654,9 @@ def main() -> None:
     st.add_argument("--per-block", action="store_true",
                     help="with --true-split: one line per block (its robot-contact frames, the observed launch speed, "
                          "the true model's launch over the declared one's, the two block errors)")
+    st.add_argument("--save-outputs", default=None, metavar="DIR",
+                    help="pickle each cell's loop output (what service.residuals.run returns) to DIR/CASE_SEED.pkl, for "
+                         "benchmarks/residuals_corrected_split.py; the printed figures do not change")
     st.add_argument("--sphere-drive", choices=("lead", "inverse"), default=None,
                     help="how the rollouts drag the sphere along the measured path (ResidualConfig.sphere_drive, "
                          "docs/residuals.md §6): lead or inverse (the constraint's update inverted, the config's default)")
