@@ -120,6 +120,52 @@ def level_pose(X: np.ndarray, a: np.ndarray, p_O: np.ndarray) -> tuple[np.ndarra
     return out, th
 
 
+def lying_geometry(Q: np.ndarray, axis_O: np.ndarray, stand_deg: float = 15.0
+                   ) -> tuple[np.ndarray, np.ndarray, float] | None:
+    """(a, p_O, radius): the axis direction (the vertical of W at frame 0, ẑ in O), the axis point nearest the model's
+    centroid and the radius of the profile's straight widest stretch of a body of revolution with model points Q (M,3)
+    in O that stood on its base at frame 0 (found axis ``axis_O`` (3,) within ``stand_deg`` of ẑ); None when it did
+    not stand so, no axis centre is found or the profile has no straight stretch (module docstring)."""
+    a = np.array([0.0, 0.0, 1.0])  # the vertical of W at frame 0 in O (R_WO(0) = I)
+    if abs(axis_O @ a) / np.linalg.norm(axis_O) < np.cos(np.radians(stand_deg)):
+        return None
+    c = axis_centre(Q, a)
+    if c is None:
+        return None
+    found, _, radius = straight_stretch(Q, a, c)
+    if not found:
+        return None
+    return a, c + float(np.mean((Q - c) @ a)) * a, radius
+
+
+def unseen_roll(X_WO: np.ndarray, Q: np.ndarray, table_z: float, axis_O: np.ndarray, *, stand_deg: float = 15.0,
+                lie_deg: float = 15.0, margin: float = 0.015) -> float:
+    """The largest roll (rad, ≥ 0) about its axis of a body of revolution lying on the table that the poses X_WO
+    (N,4,4) do not show as a turn: over consecutive lying frames (``lying_frames``, geometry of ``lying_geometry``;
+    model points Q (M,3) in O, found axis ``axis_O``, table height table_z) the roll without slip measured by the
+    axis point's travel across the axis, Δφ = ΔP · u / r (u = a_W × ẑ / |a_W × ẑ|, r the straight stretch's radius:
+    the contact line at rest, v_P = ω_a r u), minus the poses' own twist about the axis (``fall.twist_steps``),
+    accumulated; the largest |sum| over the frames. 0 when the geometry is not found or no two consecutive frames
+    lie."""
+    from service.tracking.fall import twist_steps
+
+    geo = lying_geometry(Q, axis_O, stand_deg)
+    if geo is None or len(X_WO) < 2:
+        return 0.0
+    a, p_O, radius = geo
+    lying = lying_frames(X_WO, a, p_O, radius, table_z, lie_deg=lie_deg, margin=margin)
+    step = lying[1:] & lying[:-1]
+    if not step.any():
+        return 0.0
+    aW = np.einsum("nij,j->ni", X_WO[:, :3, :3], a)
+    u = np.cross(aW, np.array([0.0, 0.0, 1.0]))
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+    P = np.einsum("nij,j->ni", X_WO[:, :3, :3], p_O) + X_WO[:, :3, 3]
+    dphi = np.einsum("ni,ni->n", P[1:] - P[:-1], u[1:]) / radius
+    missed = np.where(step, dphi - twist_steps(X_WO, a)[1:], 0.0)
+    return float(np.max(np.abs(np.cumsum(missed))))
+
+
 def level_lying(X_WO: np.ndarray, Q: np.ndarray, table_z: float, axis_O: np.ndarray, *, stand_deg: float = 15.0,
                 lie_deg: float = 15.0, margin: float = 0.015, max_deg: float = 10.0
                 ) -> tuple[np.ndarray, np.ndarray]:
@@ -130,16 +176,10 @@ def level_lying(X_WO: np.ndarray, Q: np.ndarray, table_z: float, axis_O: np.ndar
     the profile has no straight stretch."""
     n = len(X_WO)
     none = np.zeros(n, bool)
-    a = np.array([0.0, 0.0, 1.0])  # the vertical of W at frame 0 in O (R_WO(0) = I)
-    if abs(axis_O @ a) / np.linalg.norm(axis_O) < np.cos(np.radians(stand_deg)):
+    geo = lying_geometry(Q, axis_O, stand_deg)
+    if geo is None:
         return X_WO.copy(), none
-    c = axis_centre(Q, a)
-    if c is None:
-        return X_WO.copy(), none
-    found, _, radius = straight_stretch(Q, a, c)
-    if not found:
-        return X_WO.copy(), none
-    p_O = c + float(np.mean((Q - c) @ a)) * a  # the axis point nearest the model's centroid
+    a, p_O, radius = geo
     lying = lying_frames(X_WO, a, p_O, radius, table_z, lie_deg=lie_deg, margin=margin)
     out = X_WO.copy()
     done = none.copy()

@@ -445,7 +445,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     spin = tilt = None
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
-        spin = _spin_closure(obs, X, model, cfg)
+        spin = _spin_closure(obs, X, model, cfg, session.table_height)
         if cfg.spin_tilt:
             tilt = _spin_tilt(obs, X, model, spin, cfg)
         if cfg.lie_level:  # a lying body of revolution: axis parallel to the table (service.tracking.lying)
@@ -782,9 +782,11 @@ def _spin_tau(model: ObjectModel, cfg: TrackingConfig) -> float:
     return cfg.spin_tau
 
 
-def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig) -> "SpinResult":
+def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: TrackingConfig,
+                  table_z: float | None = None) -> "SpinResult":
     """Re-estimate the spin about the symmetry axis of a body of revolution (``service.tracking.spin``) and apply
-    it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture."""
+    it to X (N,4,4) in place; nothing changes when the model is not a body of revolution or has no texture.
+    ``table_z``: the table height (m), for the cap of a body that rolls on the table (``spin_cap_roll``)."""
     from service.tracking.spin import apply_spin, find_axis, spin_closure
 
     tau = _spin_tau(model, cfg)
@@ -794,9 +796,10 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
         return refused
     empty = (np.zeros((0, 3)), None)
     feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
+    cap = _spin_cap(X, model, axis, table_z, cfg)
     common = dict(tau=cfg.spin_tau, tol=cfg.spin_tol, inlier_deg=cfg.spin_inlier_deg,
                   smooth=1 if cfg.spin_twist_smooth > 1 else cfg.spin_smooth,  # twist filtered instead (below)
-                  match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cfg.spin_max_deg)
+                  match=_match, sep=cfg.spin_sep, profile=cfg.spin_profile, max_deg=cap)
     common["tau"] = tau
     common["axis"] = axis
     graph = dict(gate_deg=cfg.spin_graph_gate_deg, n_short=cfg.spin_graph_short, rate_deg=cfg.spin_graph_rate_deg,
@@ -814,11 +817,28 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
     if cfg.spin_twist_smooth > 1:  # the body's twist median-filtered instead of the correction (spin.smooth_twist)
         from service.tracking.spin import smooth_twist
 
-        res = smooth_twist(res, X, cfg.spin_twist_smooth, cfg.spin_max_deg)
+        res = smooth_twist(res, X, cfg.spin_twist_smooth, cap)
     if cfg.spin_pivot_deg > 0:  # the tilts of a pivot bridged without spin (service/tracking/fall.py)
-        res = _spin_pivot(res, X, cfg)
+        res = _spin_pivot(res, X, cfg, cap)
     X[:] = apply_spin(X, res)
     return res
+
+
+def _spin_cap(X: np.ndarray, model: ObjectModel, axis: tuple, table_z: float | None, cfg: TrackingConfig
+              ) -> float:
+    """The cap (deg) of the spin correction of the poses X (N,4,4): ``spin_max_deg``, raised with ``spin_cap_roll`` by
+    the roll of a body of revolution lying on the table that the poses do not show as a turn (``lying.unseen_roll``
+    with the ``lie_level_*`` geometry; ``axis``: ``spin.find_axis``'s result): the depth fit cannot see a lying body
+    of revolution roll (its surface maps onto itself), so the tracked poses may miss all of it while the axis' travel
+    across itself measures it. ``spin_max_deg`` itself when the option is off, there is no cap (0), the model is not a
+    body of revolution or the table height is not known."""
+    if not cfg.spin_cap_roll or cfg.spin_max_deg <= 0 or not axis[0] or table_z is None:
+        return cfg.spin_max_deg
+    from service.tracking.lying import unseen_roll
+
+    roll = unseen_roll(X, model.Q, table_z, axis[2], stand_deg=cfg.lie_level_stand_deg, lie_deg=cfg.lie_level_deg,
+                       margin=cfg.lie_level_margin)
+    return cfg.spin_max_deg + float(np.degrees(roll))
 
 
 def _flat_faced(model: ObjectModel, cfg: TrackingConfig, axis: tuple, n: int) -> "SpinResult | None":
@@ -833,12 +853,13 @@ def _flat_faced(model: ObjectModel, cfg: TrackingConfig, axis: tuple, n: int) ->
     return SpinResult(False, axis[1], np.zeros(3), np.zeros(3), np.zeros(n), np.zeros(n, int), False)
 
 
-def _spin_pivot(res: "SpinResult", X: np.ndarray, cfg: TrackingConfig) -> "SpinResult":
+def _spin_pivot(res: "SpinResult", X: np.ndarray, cfg: TrackingConfig, cap: float | None = None) -> "SpinResult":
     """``res`` with the tilts of a pivot of the poses X (N,4,4) (``fall.pivot_runs``: the axis leaves its direction
     of frame 0 by ``spin_pivot_deg``, less than ``spin_fall_min_deg``, for a body standing at frame 0) bridged without
     spin about the axis (``fall.pivot_bridge``); unchanged for a body that is not one of revolution or a rejected
     correction. A textureless body (``observable`` False, θ = 0) is bridged too: the physics does not need the print
-    (its ``observable`` flag, about the texture, is kept)."""
+    (its ``observable`` flag, about the texture, is kept). ``cap``: the cap of the correction (deg; None:
+    ``spin_max_deg``)."""
     from dataclasses import replace as _replace
 
     from service.tracking.fall import pivot_bridge, pivot_runs
@@ -852,7 +873,8 @@ def _spin_pivot(res: "SpinResult", X: np.ndarray, cfg: TrackingConfig) -> "SpinR
     theta, used = pivot_bridge(res.theta, X, res.axis_O, tilts, cfg.spin_fall_tol_deg)
     if not used.any():
         return res
-    if cfg.spin_max_deg > 0 and np.max(np.abs(theta)) > np.radians(cfg.spin_max_deg):
+    cap = cfg.spin_max_deg if cap is None else cap
+    if cap > 0 and np.max(np.abs(theta)) > np.radians(cap):
         return res  # as a correction above spin_max_deg anywhere: not applied (spin._finish)
     return _replace(res, theta=theta)
 

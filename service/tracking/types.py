@@ -156,6 +156,12 @@ class TrackingConfig:
     # spin_max_deg in any frame is not applied (0: no cap)
     spin_profile: str = "multi"
     spin_max_deg: float = 120.0
+    # the cap raised by the roll of a lying body of revolution that the tracked poses do not show as a turn (the axis
+    # point's travel across the axis over the straight stretch's radius, minus the poses' own twist, over the frames
+    # lie_level finds lying; lying.unseen_roll): the depth fit cannot see such a roll, so the correction that restores
+    # it may exceed spin_max_deg (development bottle topple 1565: 125 deg needed, 94 deg of unseen roll,
+    # 46.27 -> 1.21 deg median; docs/tracking-findings.md "The cap of the spin correction and the unseen roll")
+    spin_cap_roll: bool = False
     # gauge of the body frame (service.tracking.gauge): X̂_0 = robust mean of frame 0's registration to the final model
     # and of the final poses of up to gauge_frames frames at rest — before the end effector comes within ee_radius +
     # gauge_ee_margin of the model, within gauge_max_deg / gauge_max_dist of frame 0 (0: frame 0 alone; no robot data:
@@ -389,6 +395,8 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not self.spin_max_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
+        if not isinstance(self.spin_cap_roll, bool):
+            raise ValueError(f"TrackingConfig.spin_cap_roll must be a bool, not {self.spin_cap_roll!r}")
         for name in ("sdf_band_px", "sdf_contradict_margin"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
