@@ -486,7 +486,8 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     if not pre:
         return None
     M = _model_from(pre, cfg.model_voxel)
-    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height)
+    box = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0]) if cfg.resettle_box_face else None  # base normal in O
+    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height, box_base_O=box)
     Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift)
     Xj = reach_along(Xj, M.Q, o.P_W, np.cross(h, [0.0, 0.0, 1.0]), cfg.resettle_max_shift)
     dt, da = pose_distance(X[i], Xj)

@@ -234,6 +234,11 @@ class TrackingConfig:
     resettle_min_dist: float = 0.03
     resettle_max_shift: float = 0.03
     resettle_seen: float = 0.02
+    # a box whose leading face the pre-fall model never saw (it tips away from the camera): the join takes the leading
+    # face from the box's seen flat sides (resettle.box_face: at right angles to each other, squared to the base it
+    # stood on; the side direction nearest the tipping direction, at the model's extent along it) instead of leaving
+    # the fall unjoined (docs/tracking-findings.md "Carton topples that tip away from the camera")
+    resettle_box_face: bool = False
     # support closure (visible.support_feet): the SDF's initial hull also takes the foot of every observed surface
     # point on the table plane at frame 0 (the object rests on the table, so the never-seen space below what was
     # seen is object unless a keyframe saw it empty, which the carving then removes); needs below_table_outside.
@@ -418,6 +423,8 @@ class TrackingConfig:
                      "resettle_max_shift", "resettle_seen"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        if not isinstance(self.resettle_box_face, bool):
+            raise ValueError(f"TrackingConfig.resettle_box_face must be a bool, not {self.resettle_box_face!r}")
         if not self.resettle_delay >= 1:
             raise ValueError(f"TrackingConfig.resettle_delay must be >= 1, not {self.resettle_delay!r}")
         for name in ("resettle_flush_deg", "resettle_flush_square_deg"):
