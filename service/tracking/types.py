@@ -237,7 +237,10 @@ class TrackingConfig:
     # a box whose leading face the pre-fall model never saw (it tips away from the camera): the join takes the leading
     # face from the box's seen flat sides (resettle.box_face: at right angles to each other, squared to the base it
     # stood on; the side direction nearest the tipping direction, at the model's extent along it) instead of leaving
-    # the fall unjoined (docs/tracking-findings.md "Carton topples that tip away from the camera")
+    # the fall unjoined (docs/tracking-findings.md "Carton topples that tip away from the camera"). Off: development
+    # carton topples 1559 17.01 -> 0.28 deg, 1617 15.83 -> 1.64 deg median (4 of 25 sessions changed, all gain in
+    # rotation), the 12 synthetic evaluation sessions identical, but the real video's carried cube gets a false join
+    # (rotation p90 2.17 -> 50.74 deg)
     resettle_box_face: bool = False
     # support closure (visible.support_feet): the SDF's initial hull also takes the foot of every observed surface
     # point on the table plane at frame 0 (the object rests on the table, so the never-seen space below what was
