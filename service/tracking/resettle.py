@@ -27,7 +27,10 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    reach of the frame's points along f (``reach_along``: the model's top end must reach at least as far).
    With ``resettle_box_face`` (off) and no leading face in the model (a box that tips away from the camera shows
    it to no pre-fall view), the leading face of a box is taken from its seen flat sides (``box_face``: at right
-   angles, squared to the base, the side direction nearest f, at the model's extent along it).
+   angles, squared to the base, the side direction nearest f, at the model's extent along it) — only when the body
+   rests on the table at frame i (``box_landing_pose``, ``on_table``: the lowest point of the tracker's model under
+   the tracked pose at most ``resettle_box_rest`` above the table plane): a landing is a body coming to rest on the
+   table, and a box held in the air by a gripper, turned during a carry, is not landing.
 3. When the object has a leading face, the join differs from the tracked pose by more than ``min_deg`` /
    ``min_dist`` and puts no more of the pre-fall model where frame i sees the table or background than the tracked
    pose does (the frame's own depth as free space), frame i takes it, the keyframes from g0 on are dropped and
@@ -238,6 +241,27 @@ def box_face(P: np.ndarray, N: np.ndarray, f: np.ndarray, b: np.ndarray, side_co
             return None  # not at right angles: not a box
     n = axes[int(np.argmax(axes @ f))]
     return n, float(np.max(P @ n))
+
+
+def on_table(X_WO: np.ndarray, Q_O: np.ndarray, table_height: float, tol: float) -> bool:
+    """Whether a body at pose X_WO (4,4) rests on the table: the lowest of its model points Q_O (M,3, in O) lies at
+    most ``tol`` (m) above the table plane z = ``table_height`` (W). Below the plane counts as resting (a wrong pose
+    of a body on the table, not a body held above it)."""
+    return bool(np.min(heights(X_WO, Q_O)) <= table_height + tol)
+
+
+def box_landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
+                     box_base_O: np.ndarray, X_i: np.ndarray, Q_i: np.ndarray, rest: float
+                     ) -> tuple[np.ndarray, bool]:
+    """``landing_pose`` of the pre-fall model Q_O, N_O (M,3) from rest pose X_r (4,4) about h (3,); when that model
+    has no leading face, the leading face of a box (``box_base_O``, see ``landing_pose``) is taken from its sides
+    only if the body rests on the table at the settled frame (``on_table``: the model Q_i (K,3, in O) under the
+    tracked pose X_i (4,4) within ``rest`` (m) of the table plane). A box held in the air (carried by a gripper and
+    turned) is not landing: its join is left without a face, as without ``box_base_O``. Returns (pose, face)."""
+    X, face = landing_pose(X_r, h, Q_O, N_O, table_height)
+    if face or not on_table(X_i, Q_i, table_height, rest):
+        return X, face
+    return landing_pose(X_r, h, Q_O, N_O, table_height, box_base_O=box_base_O)
 
 
 def reach_along(X: np.ndarray, Q_O: np.ndarray, P_W: np.ndarray, f: np.ndarray, max_shift: float,

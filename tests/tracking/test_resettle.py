@@ -498,3 +498,43 @@ def test_box_face_refuses_curved_and_oblique_sides():
     Ps[1] = Ps[1] @ so3_exp(np.array([0.0, 0.0, np.radians(-30.0)])).T
     Ns[1] = Ns[1] @ so3_exp(np.array([0.0, 0.0, np.radians(-30.0)])).T
     assert box_face(np.concatenate(Ps), np.concatenate(Ns), f, b) is not None
+
+
+def test_box_face_join_needs_the_body_resting_on_the_table():
+    """A landing is a body coming to rest on the table. The box that tips away from the camera (its leading face never
+    seen) is joined on the face taken from its sides when, at the settled frame, the tracker's model under the tracked
+    pose rests on the table (here the truth, or the truth pushed 5 mm into the table); the same box held 3 cm above
+    the table (carried by a gripper and turned) is not joined. A model with its leading face seen is joined as before,
+    held or not (the gate is the box-face path's only)."""
+    from service.tracking import TrackingConfig
+    from service.tracking.resettle import box_landing_pose, on_table
+
+    table = 0.02
+    X_r = make_X(so3_exp(np.array([0.0, 0.0, np.radians(25.0)])), np.array([0.4, 0.1, table + SIZE[2] / 2]))
+    Q, Nq = box_faces(z_min=-0.01)
+    vis = (Nq @ np.array([0.6, -1.0, 0.4])) > 0  # top, −y and +x: the +y face that leads is hidden
+    Q, Nq = Q[vis], Nq[vis]
+    Rz = X_r[:3, :3]
+    e = Rz @ np.array([-1.0, 0.0, 0.0])
+    pivot = X_r[:3, 3] + Rz @ np.array([0.0, SIZE[1] / 2, -SIZE[2] / 2])
+    Rt = so3_exp(e * np.pi / 2)
+    truth = make_X(Rt @ Rz, pivot + Rt @ (X_r[:3, 3] - pivot))
+    h = so3_exp(np.array([0, 0, np.radians(7.0)])) @ e
+    base_O, rest = np.array([0.0, 0.0, -1.0]), TrackingConfig().resettle_box_rest
+    up = np.eye(4)
+    up[2, 3] = 0.03
+    down = np.eye(4)
+    down[2, 3] = -0.005
+    assert on_table(truth, Q, table, rest) and on_table(down @ truth, Q, table, rest)
+    assert not on_table(up @ truth, Q, table, rest)
+    X1, f1 = box_landing_pose(X_r, h, Q, Nq, table, base_O, truth, Q, rest)  # resting: joined on the unseen face
+    assert f1 and pose_distance(X1, truth)[1] < 0.5
+    assert box_landing_pose(X_r, h, Q, Nq, table, base_O, down @ truth, Q, rest)[1]
+    X2, f2 = box_landing_pose(X_r, h, Q, Nq, table, base_O, up @ truth, Q, rest)  # held 3 cm up: no join
+    assert not f2 and np.array_equal(X2, landing_pose(X_r, h, Q, Nq, table)[0])
+    # the leading face seen: the gate does not apply
+    Qa, Na = box_faces(z_min=-0.01)
+    va = (Na @ np.array([0.0, 1.0, 0.3])) > 0
+    Xa, fa = landing_pose(X_r, h, Qa[va], Na[va], table)
+    Xb, fb = box_landing_pose(X_r, h, Qa[va], Na[va], table, base_O, up @ truth, Qa[va], rest)
+    assert fa and fb and np.array_equal(Xa, Xb)
