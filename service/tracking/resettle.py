@@ -25,7 +25,7 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    direction of the model's normals, the plane offset of the model's points and of the frame's points with
    normals within 20° of it; corrections above ``max_shift`` are left out; the yaw is not corrected) and by the
    reach of the frame's points along f (``reach_along``: the model's top end must reach at least as far).
-   With ``resettle_box_face`` (off) and no leading face in the model (a box that tips away from the camera shows
+   With ``resettle_box_face`` (on) and no leading face in the model (a box that tips away from the camera shows
    it to no pre-fall view), the leading face of a box is taken from its seen flat sides (``box_face``: at right
    angles, squared to the base, the side direction nearest f, at the model's extent along it) — only when the body
    rests on the table at frame i (``box_landing_pose``, ``on_table``: the lowest point of the tracker's model under

@@ -237,11 +237,11 @@ class TrackingConfig:
     # a box whose leading face the pre-fall model never saw (it tips away from the camera): the join takes the leading
     # face from the box's seen flat sides (resettle.box_face: at right angles to each other, squared to the base it
     # stood on; the side direction nearest the tipping direction, at the model's extent along it) instead of leaving
-    # the fall unjoined (docs/tracking-findings.md "Carton topples that tip away from the camera"). Off: development
-    # carton topples 1559 17.01 -> 0.28 deg, 1617 15.83 -> 1.64 deg median (4 of 25 sessions changed, all gain in
-    # rotation), the 12 synthetic evaluation sessions identical, but the real video's carried cube gets a false join
-    # (rotation p90 2.17 -> 50.74 deg)
-    resettle_box_face: bool = False
+    # the fall unjoined (docs/tracking-findings.md "Carton topples that tip away from the camera"), for a body resting
+    # on the table only (resettle_box_rest). On: development carton topples 1559 17.01 -> 0.28 deg, 1617 15.83 -> 1.64
+    # deg median (4 of 25 sessions changed, all gain in rotation), the 12 synthetic evaluation sessions and the real
+    # video identical (without the rest gate the real video's carried cube got a false join: rotation p90 2.17 -> 50.74)
+    resettle_box_face: bool = True
     # ... only for a body resting on the table at the settled frame (resettle.on_table): the lowest point of the
     # tracker's model under the tracked pose at most this (m) above the table plane. A landing is a body coming to rest
     # on the table; a box held and turned by a gripper in the air is not (the real video's carried cube at its false

@@ -520,6 +520,7 @@ def test_box_face_join_needs_the_body_resting_on_the_table():
     Rt = so3_exp(e * np.pi / 2)
     truth = make_X(Rt @ Rz, pivot + Rt @ (X_r[:3, 3] - pivot))
     h = so3_exp(np.array([0, 0, np.radians(7.0)])) @ e
+    assert TrackingConfig().resettle_box_face and TrackingConfig().resettle_box_rest == 0.015  # on by default
     base_O, rest = np.array([0.0, 0.0, -1.0]), TrackingConfig().resettle_box_rest
     up = np.eye(4)
     up[2, 3] = 0.03
