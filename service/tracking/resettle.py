@@ -25,6 +25,12 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    direction of the model's normals, the plane offset of the model's points and of the frame's points with
    normals within 20° of it; corrections above ``max_shift`` are left out; the yaw is not corrected) and by the
    reach of the frame's points along f (``reach_along``: the model's top end must reach at least as far).
+   With ``resettle_box_face`` (on) and no leading face in the model (a box that tips away from the camera shows
+   it to no pre-fall view), the leading face of a box is taken from its seen flat sides (``box_face``: at right
+   angles, squared to the base, the side direction nearest f, at the model's extent along it) — only when the body
+   rests on the table at frame i (``box_landing_pose``, ``on_table``: the lowest point of the tracker's model under
+   the tracked pose at most ``resettle_box_rest`` above the table plane): a landing is a body coming to rest on the
+   table, and a box held in the air by a gripper, turned during a carry, is not landing.
 3. When the object has a leading face, the join differs from the tracked pose by more than ``min_deg`` /
    ``min_dist`` and puts no more of the pre-fall model where frame i sees the table or background than the tracked
    pose does (the frame's own depth as free space), frame i takes it, the keyframes from g0 on are dropped and
@@ -155,13 +161,18 @@ def face_plane(P: np.ndarray, N: np.ndarray, d: np.ndarray, cos_min: float, min_
 
 
 def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
-                 face_cos: float = np.cos(np.radians(30.0))) -> tuple[np.ndarray, bool]:
+                 face_cos: float = np.cos(np.radians(30.0)), box_base_O: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, bool]:
     """Pose (4,4) of the object after tipping about the horizontal unit axis h (3,) from rest pose X_r until its
     leading face lies on the table (see module docstring, step 2). Q_O, N_O (M,3): the pre-fall model.
     With the leading face in the model (``face_plane``), the turn is about the horizontal line where its plane meets
     the table, by the angle that lays its normal n_f on −z (h only picks the face); without it, 90° about h through
     the model's extent along the tipping direction on the table, then lowered onto the table.
-    Returns (pose, whether the leading face was found)."""
+    With ``box_base_O`` (3,: the unit normal, in O, of the base the object stood on) and no leading face in the model
+    (a box that tips away from the camera: the face that leads was never seen), the leading face of a box
+    (``box_face``: its seen flat sides at right angles, the one nearest f) takes its place, at the model's extent
+    along its normal.
+    Returns (pose, whether the leading face was found or, with ``box_base_O``, inferred from a box's sides)."""
     R_r, t_r = X_r[:3, :3], X_r[:3, 3]
     P = Q_O @ R_r.T + t_r
     Nw = N_O @ R_r.T
@@ -169,6 +180,8 @@ def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarra
     f = np.cross(h, z)  # the top moves along f for a positive turn about h
     c = P.mean(0)
     plane = face_plane(P, Nw, f, face_cos, 0.03)
+    if plane is None and box_base_O is not None:
+        plane = box_face(P, Nw, f, R_r @ box_base_O)
     if plane is not None and np.hypot(*plane[0][:2]) > 0.7:
         n_f, d_f = plane
         u = np.array([n_f[0], n_f[1], 0.0])
@@ -188,6 +201,67 @@ def landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarra
     X = make_X(R, pivot + R_turn @ (t_r - pivot))
     X[2, 3] += table_height - float(np.min(Q_O @ R[2] + X[2, 3]))
     return X, False
+
+
+def box_face(P: np.ndarray, N: np.ndarray, f: np.ndarray, b: np.ndarray, side_cos: float = 0.3,
+             square_deg: float = 10.0, max_faces: int = 3) -> tuple[np.ndarray, float] | None:
+    """The leading face of a box from its other sides, when the face itself was never seen: the plane (unit normal n,
+    offset n·p) whose normal is the side direction nearest the tipping direction f (3,), among the directions at right
+    angles of the seen flat sides, squared to the base, and whose offset is the extent of the points P (M,3) along n
+    (the face lies at least that far; ``reach_along`` and the refinement move it on). P, N (M,3) the model and its
+    normals, b (3,) the unit normal of the base it stood on, all in the same frame. The sides: the points with
+    normals within acos(``side_cos``) of perpendicular to b; up to ``max_faces`` flat sides are found in turn
+    (``face_plane`` about the most common side normal, then the normals more than 30° from it; its 4 mm flatness test
+    refuses an egg's or a bottle's side); the first, squared to b, gives the box's side directions ±s and ±(b × s).
+    None when no flat side is seen or when a seen flat side lies more than ``square_deg`` from those directions (a
+    prism with other angles, not a box)."""
+    b = b / np.linalg.norm(b)
+    side = np.abs(N @ b) < side_cos
+    dirs: list[np.ndarray] = []
+    left = side.copy()
+    for _ in range(max_faces):
+        if left.sum() < 30:
+            break
+        S = N[left]
+        sub = S[:: max(1, len(S) // 300)]
+        d = sub[int(np.argmax([(S @ s > np.cos(np.radians(20.0))).sum() for s in sub]))]
+        plane = face_plane(P, N, d, np.cos(np.radians(30.0)), 0.03)
+        left &= N @ d < np.cos(np.radians(30.0))
+        if plane is not None:
+            dirs.append(plane[0])
+    if not dirs:
+        return None
+    s = dirs[0] - (dirs[0] @ b) * b
+    s /= np.linalg.norm(s)
+    axes = np.array([s, -s, np.cross(b, s), -np.cross(b, s)])
+    for n in dirs[1:]:
+        m = n - (n @ b) * b
+        m /= np.linalg.norm(m)
+        if np.max(axes @ m) < np.cos(np.radians(square_deg)):
+            return None  # not at right angles: not a box
+    n = axes[int(np.argmax(axes @ f))]
+    return n, float(np.max(P @ n))
+
+
+def on_table(X_WO: np.ndarray, Q_O: np.ndarray, table_height: float, tol: float) -> bool:
+    """Whether a body at pose X_WO (4,4) rests on the table: the lowest of its model points Q_O (M,3, in O) lies at
+    most ``tol`` (m) above the table plane z = ``table_height`` (W). Below the plane counts as resting (a wrong pose
+    of a body on the table, not a body held above it)."""
+    return bool(np.min(heights(X_WO, Q_O)) <= table_height + tol)
+
+
+def box_landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
+                     box_base_O: np.ndarray, X_i: np.ndarray, Q_i: np.ndarray, rest: float
+                     ) -> tuple[np.ndarray, bool]:
+    """``landing_pose`` of the pre-fall model Q_O, N_O (M,3) from rest pose X_r (4,4) about h (3,); when that model
+    has no leading face, the leading face of a box (``box_base_O``, see ``landing_pose``) is taken from its sides
+    only if the body rests on the table at the settled frame (``on_table``: the model Q_i (K,3, in O) under the
+    tracked pose X_i (4,4) within ``rest`` (m) of the table plane). A box held in the air (carried by a gripper and
+    turned) is not landing: its join is left without a face, as without ``box_base_O``. Returns (pose, face)."""
+    X, face = landing_pose(X_r, h, Q_O, N_O, table_height)
+    if face or not on_table(X_i, Q_i, table_height, rest):
+        return X, face
+    return landing_pose(X_r, h, Q_O, N_O, table_height, box_base_O=box_base_O)
 
 
 def reach_along(X: np.ndarray, Q_O: np.ndarray, P_W: np.ndarray, f: np.ndarray, max_shift: float,

@@ -475,7 +475,7 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     ``carver`` changed in place), X[i] takes it and frame i becomes a keyframe with all its points; returns (the ICP
     result at the new pose, the new model), else None. Every fall checked is appended to ``landings``."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import Landing, face_offsets, find_fall, landing_pose, reach_along
+    from service.tracking.resettle import Landing, box_landing_pose, face_offsets, find_fall, landing_pose, reach_along
 
     ev = find_fall(X, tracked, i, cfg.settle_fast_deg, cfg.settle_fall_deg, cfg.resettle_tip_deg,
                    cfg.resettle_min_tip_deg, cfg.resettle_delay, after=max([ld.i for ld in landings], default=0))
@@ -486,7 +486,12 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     if not pre:
         return None
     M = _model_from(pre, cfg.model_voxel)
-    Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height)
+    if cfg.resettle_box_face:  # a box's leading face from its sides, only for a body resting on the table at frame i
+        box = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])  # the base it stood on: its normal in O
+        Xj, face = box_landing_pose(X[r], h, M.Q, M.N, session.table_height, box,
+                                    X[i], _model_from(keyframes, cfg.model_voxel).Q, cfg.resettle_box_rest)
+    else:
+        Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height)
     Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift)
     Xj = reach_along(Xj, M.Q, o.P_W, np.cross(h, [0.0, 0.0, 1.0]), cfg.resettle_max_shift)
     dt, da = pose_distance(X[i], Xj)

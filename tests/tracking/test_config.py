@@ -19,6 +19,9 @@ def test_defaults_and_fast_are_valid():
     ({"sdf_silhouette_back": 0.02}, ["sdf_silhouette_back", "trunc"]),
     ({"sdf_silhouette_margin": -0.001}, ["sdf_silhouette_margin"]),
     ({"sdf_silhouette_drop": 1}, ["sdf_silhouette_drop"]),
+    ({"resettle_box_face": 1}, ["resettle_box_face"]),
+    ({"resettle_box_rest": -0.001}, ["resettle_box_rest"]),
+    ({"resettle_box_rest": float("nan")}, ["resettle_box_rest"]),
 ])
 def test_bad_settings_are_refused_with_the_field_named(change, words):
     with pytest.raises(ValueError) as e:

@@ -425,3 +425,117 @@ def test_fall_frame_fits_decided_by_the_tipping_path():
         TrackingConfig(resettle_tip_tol=-0.01)
     with pytest.raises(ValueError, match="resettle_tip_m_deg"):
         TrackingConfig(resettle_tip_m_deg=float("inf"))
+
+
+def test_box_tipping_away_from_the_camera_lands_on_its_unseen_face():
+    """A box that tips away from the camera: the pre-fall model holds its top and the faces the camera sees (−y, the
+    trailing face, and +x), never the +y face that leads. Without the box's sides the join has no leading face (it is
+    not adopted); with them (``box_base_O``: the base it stood on) the leading face is the +y side (at right angles
+    to the seen sides, nearest the tipping direction, at the model's extent along it) and the join is the truth."""
+    from service.tracking.resettle import box_face
+
+    table = 0.0
+    X_r = make_X(so3_exp(np.array([0.0, 0.0, np.radians(25.0)])), np.array([0.4, 0.1, table + SIZE[2] / 2]))
+    Q, Nq = box_faces(z_min=-0.01)
+    vis = (Nq @ np.array([0.6, -1.0, 0.4])) > 0  # top, −y and +x: the +y face is hidden
+    Q, Nq = Q[vis], Nq[vis]
+    Q = Q + np.random.default_rng(4).normal(0, 0.0008, Q.shape)
+    Rz = X_r[:3, :3]
+    # the truth: the standing box turned 90° about its bottom edge at +y of its own frame
+    e = Rz @ np.array([-1.0, 0.0, 0.0])
+    pivot = X_r[:3, 3] + Rz @ np.array([0.0, SIZE[1] / 2, -SIZE[2] / 2])
+    Rt = so3_exp(e * np.pi / 2)
+    truth = make_X(Rt @ Rz, pivot + Rt @ (X_r[:3, 3] - pivot))
+    h = so3_exp(np.array([0, 0, np.radians(7.0)])) @ e  # the loop's tip axis, 7° off
+    X0, face0 = landing_pose(X_r, h, Q, Nq, table)
+    assert not face0  # no leading face seen: the join is not adopted
+    base_O = np.array([0.0, 0.0, -1.0])
+    X1, face1 = landing_pose(X_r, h, Q, Nq, table, box_base_O=base_O)
+    assert face1
+    dt, da = pose_distance(X1, truth)
+    assert da < 0.5 and dt < 0.003, (da, dt)
+    # the side directions come from the seen faces, not from the tip axis: the same leading face 30° off
+    h30 = so3_exp(np.array([0, 0, np.radians(30.0)])) @ e
+    assert pose_distance(landing_pose(X_r, h30, Q, Nq, table, box_base_O=base_O)[0], truth)[1] < 0.5
+    # a seen face the leading one is in the model: box_base_O changes nothing
+    Qa, Na = box_faces(z_min=-0.01)
+    va = (Na @ np.array([0.0, 1.0, 0.3])) > 0
+    Xa, fa = landing_pose(X_r, h, Qa[va], Na[va], table)
+    Xb, fb = landing_pose(X_r, h, Qa[va], Na[va], table, box_base_O=base_O)
+    assert fa and fb and np.array_equal(Xa, Xb)
+    # box_face itself: the +y side of the box in W at X_r
+    n, off = box_face(Q @ Rz.T + X_r[:3, 3], Nq @ Rz.T, np.cross(h, [0.0, 0.0, 1.0]), Rz @ base_O)
+    assert n @ (Rz @ np.array([0.0, 1.0, 0.0])) > 0.9999
+
+
+def test_box_face_refuses_curved_and_oblique_sides():
+    """No box: an egg's and a bottle's sides are curved (no flat side), and a triangular prism's seen sides meet at
+    60°, not at right angles."""
+    from service.tracking.resettle import box_face
+
+    b = np.array([0.0, 0.0, -1.0])
+    f = np.array([0.0, 1.0, 0.0])
+    rng = np.random.default_rng(5)
+    u = rng.normal(size=(6000, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    ax = np.array([0.03, 0.03, 0.045])  # egg-like, standing
+    N = u * ax / ax**2
+    assert box_face(u * ax, N / np.linalg.norm(N, axis=1, keepdims=True), f, b) is None
+    th, z = rng.uniform(-np.pi, np.pi, 8000), rng.uniform(-0.05, 0.09, 8000)  # a bottle's side, radius 3.5 cm
+    N = np.column_stack([np.cos(th), np.sin(th), np.zeros_like(th)])
+    assert box_face(0.035 * N + np.outer(z, [0.0, 0.0, 1.0]), N, f, b) is None
+    # a triangular prism (side 8 cm), two of its three sides seen
+    Ps, Ns = [], []
+    for k in range(2):
+        a = np.radians(-90.0 + 120.0 * k)
+        n = np.array([np.cos(a), np.sin(a), 0.0])
+        t = np.cross([0.0, 0.0, 1.0], n)
+        s, zz = np.meshgrid(np.linspace(-0.04, 0.04, 30), np.linspace(-0.05, 0.09, 30))
+        Ps.append(0.023 * n + s.reshape(-1, 1) * t + zz.reshape(-1, 1) * [0.0, 0.0, 1.0])
+        Ns.append(np.tile(n, (s.size, 1)))
+    assert box_face(np.concatenate(Ps), np.concatenate(Ns), f, b) is None
+    # the same two sides at right angles: a box
+    Ps[1] = Ps[1] @ so3_exp(np.array([0.0, 0.0, np.radians(-30.0)])).T
+    Ns[1] = Ns[1] @ so3_exp(np.array([0.0, 0.0, np.radians(-30.0)])).T
+    assert box_face(np.concatenate(Ps), np.concatenate(Ns), f, b) is not None
+
+
+def test_box_face_join_needs_the_body_resting_on_the_table():
+    """A landing is a body coming to rest on the table. The box that tips away from the camera (its leading face never
+    seen) is joined on the face taken from its sides when, at the settled frame, the tracker's model under the tracked
+    pose rests on the table (here the truth, or the truth pushed 5 mm into the table); the same box held 3 cm above
+    the table (carried by a gripper and turned) is not joined. A model with its leading face seen is joined as before,
+    held or not (the gate is the box-face path's only)."""
+    from service.tracking import TrackingConfig
+    from service.tracking.resettle import box_landing_pose, on_table
+
+    table = 0.02
+    X_r = make_X(so3_exp(np.array([0.0, 0.0, np.radians(25.0)])), np.array([0.4, 0.1, table + SIZE[2] / 2]))
+    Q, Nq = box_faces(z_min=-0.01)
+    vis = (Nq @ np.array([0.6, -1.0, 0.4])) > 0  # top, −y and +x: the +y face that leads is hidden
+    Q, Nq = Q[vis], Nq[vis]
+    Rz = X_r[:3, :3]
+    e = Rz @ np.array([-1.0, 0.0, 0.0])
+    pivot = X_r[:3, 3] + Rz @ np.array([0.0, SIZE[1] / 2, -SIZE[2] / 2])
+    Rt = so3_exp(e * np.pi / 2)
+    truth = make_X(Rt @ Rz, pivot + Rt @ (X_r[:3, 3] - pivot))
+    h = so3_exp(np.array([0, 0, np.radians(7.0)])) @ e
+    assert TrackingConfig().resettle_box_face and TrackingConfig().resettle_box_rest == 0.015  # on by default
+    base_O, rest = np.array([0.0, 0.0, -1.0]), TrackingConfig().resettle_box_rest
+    up = np.eye(4)
+    up[2, 3] = 0.03
+    down = np.eye(4)
+    down[2, 3] = -0.005
+    assert on_table(truth, Q, table, rest) and on_table(down @ truth, Q, table, rest)
+    assert not on_table(up @ truth, Q, table, rest)
+    X1, f1 = box_landing_pose(X_r, h, Q, Nq, table, base_O, truth, Q, rest)  # resting: joined on the unseen face
+    assert f1 and pose_distance(X1, truth)[1] < 0.5
+    assert box_landing_pose(X_r, h, Q, Nq, table, base_O, down @ truth, Q, rest)[1]
+    X2, f2 = box_landing_pose(X_r, h, Q, Nq, table, base_O, up @ truth, Q, rest)  # held 3 cm up: no join
+    assert not f2 and np.array_equal(X2, landing_pose(X_r, h, Q, Nq, table)[0])
+    # the leading face seen: the gate does not apply
+    Qa, Na = box_faces(z_min=-0.01)
+    va = (Na @ np.array([0.0, 1.0, 0.3])) > 0
+    Xa, fa = landing_pose(X_r, h, Qa[va], Na[va], table)
+    Xb, fb = box_landing_pose(X_r, h, Qa[va], Na[va], table, base_O, up @ truth, Qa[va], rest)
+    assert fa and fb and np.array_equal(Xa, Xb)
