@@ -7,22 +7,7 @@ from service.tracking import TrackingConfig
 from service.tracking.lying import lying_geometry, unseen_roll
 from service.tracking.tracker import _spin_cap
 from service.transforms import so3_exp
-
-TABLE = 0.0
-R_BODY = 0.034
-
-
-def _bottle(rng, egg=False):
-    """Surface points (M,3) in O of a bottle standing on its base, axis along z through (0.01, -0.02): a 130 mm
-    cylinder of radius 34 mm, a shoulder and a neck, seen over 200° of azimuth; ``egg``: a prolate spheroid."""
-    h = rng.uniform(0.0, 0.2 if not egg else 0.056, 4000)
-    if egg:
-        rho = 0.021 * np.sqrt(np.clip(1 - ((h - 0.028) / 0.028) ** 2, 0, 1))
-    else:
-        rho = np.where(h < 0.13, R_BODY, np.where(h < 0.17, R_BODY - (h - 0.13) / 0.04 * 0.02, 0.014))
-    phi = rng.uniform(-np.radians(100), np.radians(100), len(h))
-    P = np.c_[rho * np.cos(phi) + 0.01, rho * np.sin(phi) - 0.02, h - 0.08]
-    return P + rng.normal(0, 0.0005, P.shape)
+from tests.tracking.test_lying import TABLE, _bottle  # the same bottle model
 
 
 def _rolling(Q, roll_deg, seen):
