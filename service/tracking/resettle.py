@@ -68,6 +68,7 @@ slid along its own face keeps every frame point on the model, but its model then
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -251,15 +252,16 @@ def on_table(X_WO: np.ndarray, Q_O: np.ndarray, table_height: float, tol: float)
 
 
 def box_landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
-                     box_base_O: np.ndarray, X_i: np.ndarray, Q_i: np.ndarray, rest: float
-                     ) -> tuple[np.ndarray, bool]:
+                     box_base_O: np.ndarray, X_i: np.ndarray, Q_i: np.ndarray | Callable[[], np.ndarray],
+                     rest: float) -> tuple[np.ndarray, bool]:
     """``landing_pose`` of the pre-fall model Q_O, N_O (M,3) from rest pose X_r (4,4) about h (3,); when that model
     has no leading face, the leading face of a box (``box_base_O``, see ``landing_pose``) is taken from its sides
     only if the body rests on the table at the settled frame (``on_table``: the model Q_i (K,3, in O) under the
     tracked pose X_i (4,4) within ``rest`` (m) of the table plane). A box held in the air (carried by a gripper and
-    turned) is not landing: its join is left without a face, as without ``box_base_O``. Returns (pose, face)."""
+    turned) is not landing: its join is left without a face, as without ``box_base_O``. ``Q_i`` may be a callable
+    returning that model, called only when the pre-fall model has no leading face. Returns (pose, face)."""
     X, face = landing_pose(X_r, h, Q_O, N_O, table_height)
-    if face or not on_table(X_i, Q_i, table_height, rest):
+    if face or not on_table(X_i, Q_i() if callable(Q_i) else Q_i, table_height, rest):
         return X, face
     return landing_pose(X_r, h, Q_O, N_O, table_height, box_base_O=box_base_O)
 
