@@ -527,7 +527,6 @@ def strike(args) -> None:
             if args.save_outputs:
                 import pickle
 
-                Path(args.save_outputs).mkdir(parents=True, exist_ok=True)
                 with open(Path(args.save_outputs) / f"{case}_{seed}.pkl", "wb") as fh:
                     pickle.dump(out, fh)
             sb = out.by_mode["rollout_before"]["sliding"]["pos_err_m"]
@@ -741,6 +740,11 @@ def main() -> None:
             ResidualConfig(restitution_follow_frames=args.restitution_follow_frames)
         except ValueError as e:
             ap.error(f"--restitution-follow-frames: {e}")
+    if getattr(args, "save_outputs", None):  # made (or refused) now, not after the first cell's minutes of work
+        try:
+            Path(args.save_outputs).mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            ap.error(f"--save-outputs: cannot use {args.save_outputs!r} as a folder ({e.strerror})")
     if getattr(args, "candidates", None):
         from service.residuals.effects import REGISTRY
 
