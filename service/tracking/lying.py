@@ -120,12 +120,36 @@ def level_pose(X: np.ndarray, a: np.ndarray, p_O: np.ndarray) -> tuple[np.ndarra
     return out, th
 
 
-def lying_geometry(Q: np.ndarray, axis_O: np.ndarray, stand_deg: float = 15.0
+def lying_views_stretch(Q_lying: np.ndarray, a: np.ndarray, max_deg: float = 15.0, min_pts: int = 200
+                        ) -> tuple[bool, float]:
+    """(found, radius (m)) of the straight widest stretch of the lying views' own profile: the points Q_lying (M,3) in
+    O of the keyframes in which the body lies on the table, about their own axis (``spin.profile_axis`` started from
+    a (3,) through ``axis_centre``), which is not the merged model's: the lying views are attached to the standing
+    ones with a common tilt of a few degrees (made in the fast fall), so about a they smear the profile, about their
+    own axis they show the side of the body along its length. Not found with fewer than ``min_pts`` points, no axis
+    centre, or their axis more than ``max_deg`` from a (the lying views do not agree on one body)."""
+    from service.tracking.spin import profile_axis
+
+    if len(Q_lying) < min_pts:
+        return False, 0.0
+    c0 = axis_centre(Q_lying, a)
+    if c0 is None:
+        return False, 0.0
+    aL, cL, _ = profile_axis(Q_lying, a, c0)
+    if abs(aL @ a) < np.cos(np.radians(max_deg)):
+        return False, 0.0
+    found, _, radius = straight_stretch(Q_lying, aL, cL)
+    return found, radius
+
+
+def lying_geometry(Q: np.ndarray, axis_O: np.ndarray, stand_deg: float = 15.0, Q_lying: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, float] | None:
     """(a, p_O, radius): the axis direction (the vertical of W at frame 0, ẑ in O), the axis point nearest the model's
     centroid and the radius of the profile's straight widest stretch of a body of revolution with model points Q (M,3)
     in O that stood on its base at frame 0 (found axis ``axis_O`` (3,) within ``stand_deg`` of ẑ); None when it did
-    not stand so, no axis centre is found or the profile has no straight stretch (module docstring)."""
+    not stand so, no axis centre is found or the profile has no straight stretch (module docstring). ``Q_lying``
+    (M',3) in O, optional: the points of the keyframes in which the body lies; when the merged profile has no
+    straight stretch, the stretch (and its radius) of those views about their own axis (``lying_views_stretch``)."""
     a = np.array([0.0, 0.0, 1.0])  # the vertical of W at frame 0 in O (R_WO(0) = I)
     if abs(axis_O @ a) / np.linalg.norm(axis_O) < np.cos(np.radians(stand_deg)):
         return None
@@ -133,6 +157,8 @@ def lying_geometry(Q: np.ndarray, axis_O: np.ndarray, stand_deg: float = 15.0
     if c is None:
         return None
     found, _, radius = straight_stretch(Q, a, c)
+    if not found and Q_lying is not None:
+        found, radius = lying_views_stretch(Q_lying, a, stand_deg)
     if not found:
         return None
     return a, c + float(np.mean((Q - c) @ a)) * a, radius
@@ -167,16 +193,17 @@ def unseen_roll(X_WO: np.ndarray, Q: np.ndarray, table_z: float, axis_O: np.ndar
 
 
 def level_lying(X_WO: np.ndarray, Q: np.ndarray, table_z: float, axis_O: np.ndarray, *, stand_deg: float = 15.0,
-                lie_deg: float = 15.0, margin: float = 0.015, max_deg: float = 10.0
-                ) -> tuple[np.ndarray, np.ndarray]:
+                lie_deg: float = 15.0, margin: float = 0.015, max_deg: float = 10.0,
+                Q_lying: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(poses (N,4,4), levelled (N,) bool): the poses X_WO (N,4,4) of a body of revolution with model points Q
     (M,3) in O, found axis ``axis_O`` (3,) and frame 0 at rest on the table at height table_z, with the frames in
     which it lies on the table turned so that its axis is parallel to the table (module docstring). Unchanged when
     the found axis is more than ``stand_deg`` from the vertical of frame 0 (the body did not stand on its base) or
-    the profile has no straight stretch."""
+    the profile has no straight stretch (``Q_lying``: the lying keyframes' points in O, whose own profile is
+    searched when the merged one has none; ``lying_geometry``)."""
     n = len(X_WO)
     none = np.zeros(n, bool)
-    geo = lying_geometry(Q, axis_O, stand_deg)
+    geo = lying_geometry(Q, axis_O, stand_deg, Q_lying)
     if geo is None:
         return X_WO.copy(), none
     a, p_O, radius = geo

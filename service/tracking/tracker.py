@@ -449,7 +449,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         if cfg.spin_tilt:
             tilt = _spin_tilt(obs, X, model, spin, cfg)
         if cfg.lie_level:  # a lying body of revolution: axis parallel to the table (service.tracking.lying)
-            _level_lying(X, model, spin, session.table_height, cfg)
+            _level_lying(X, model, spin, session.table_height, cfg, keyframes)
     X = interpolate_untracked(X, tracked)
     return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings, tilt)
 
@@ -884,15 +884,29 @@ def _spin_pivot(res: "SpinResult", X: np.ndarray, cfg: TrackingConfig, cap: floa
     return _replace(res, theta=theta)
 
 
-def _level_lying(X: np.ndarray, model: ObjectModel, spin: "SpinResult", table_z: float, cfg: TrackingConfig) -> None:
+def _level_lying(X: np.ndarray, model: ObjectModel, spin: "SpinResult", table_z: float, cfg: TrackingConfig,
+                 keyframes: list[Keyframe] | None = None) -> None:
     """``lying.level_lying`` with the tracker's settings on the poses X (N,4,4), in place: the frames in which a body
-    of revolution that stood on its base at frame 0 lies on the table get its axis parallel to the table."""
+    of revolution that stood on its base at frame 0 lies on the table get its axis parallel to the table. With
+    ``lie_level_views`` the points of the ``keyframes`` that lie are passed on (``_lying_points``)."""
     if spin is None or not spin.is_revolution:
         return
     from service.tracking.lying import level_lying
 
+    Q_lying = _lying_points(keyframes, cfg) if cfg.lie_level_views and keyframes else None
     X[:], _ = level_lying(X, model.Q, table_z, spin.axis_O, stand_deg=cfg.lie_level_stand_deg,
-                          lie_deg=cfg.lie_level_deg, margin=cfg.lie_level_margin, max_deg=cfg.lie_level_max_deg)
+                          lie_deg=cfg.lie_level_deg, margin=cfg.lie_level_margin, max_deg=cfg.lie_level_max_deg,
+                          Q_lying=Q_lying)
+
+
+def _lying_points(keyframes: list[Keyframe], cfg: TrackingConfig) -> np.ndarray:
+    """(M,3) in O: the points of the keyframes whose pose has ẑ_O (the axis of a body that stood on its base at frame
+    0) within ``lie_level_deg`` of the horizontal — the views of the body lying on the table (``lying.lying_geometry``
+    seeks the straight stretch in them when the merged model has none)."""
+    z = np.array([0.0, 0.0, 1.0])
+    s = np.sin(np.radians(cfg.lie_level_deg))
+    parts = [kf.P_O for kf in keyframes if abs((kf.X_WO[:3, :3] @ z)[2]) <= s]
+    return np.vstack(parts) if parts else np.zeros((0, 3))
 
 
 def _spin_tilt(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, spin: "SpinResult", cfg: TrackingConfig

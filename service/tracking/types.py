@@ -315,6 +315,13 @@ class TrackingConfig:
     lie_level_deg: float = 15.0
     lie_level_margin: float = 0.015
     lie_level_max_deg: float = 10.0
+    # when the merged model's profile about ẑ has no straight stretch (the lying keyframes, attached to the standing
+    # ones tilted by a few degrees in the fast fall, smear it: development bottle topples 1641, 1658, 1659: 5-30 mm of
+    # the 50 mm needed), the stretch is sought in the points of the keyframes whose pose has ẑ within lie_level_deg of
+    # the horizontal, about their own axis (lying.lying_views_stretch); the levelling is then lie_level's
+    # (docs/tracking-findings.md "Bottle topples: the lying body's tilt made in the fall")
+    lie_level_views: bool = True  # on: development 1641 7.46 -> 4.93 deg median; fresh 1694, 1696, 1699, 1700 gain
+    # 0.67-2.42 deg median, 14 of 18 identical; evaluation identical bit for bit
     # a model that fails the λ̂ test of a body of revolution (spin_tau: it scales a rotation by the model's extent, so a
     # model covering a short band of the body fails) is taken for one when its weakest direction is one clear
     # rotation whose normals lie in the meridian planes, κ = Σ (n·(a×d))² / Σ |a×d|² < spin_arc_tau (the motion seen
@@ -410,6 +417,8 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not self.spin_max_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
+        if not isinstance(self.lie_level_views, bool):
+            raise ValueError(f"TrackingConfig.lie_level_views must be a bool, not {self.lie_level_views!r}")
         if not isinstance(self.spin_cap_roll, bool):
             raise ValueError(f"TrackingConfig.spin_cap_roll must be a bool, not {self.spin_cap_roll!r}")
         for name in ("sdf_band_px", "sdf_contradict_margin"):
