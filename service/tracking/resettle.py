@@ -253,17 +253,50 @@ def on_table(X_WO: np.ndarray, Q_O: np.ndarray, table_height: float, tol: float)
 
 def box_landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
                      box_base_O: np.ndarray, X_i: np.ndarray, Q_i: np.ndarray | Callable[[], np.ndarray],
-                     rest: float) -> tuple[np.ndarray, bool]:
+                     rest: float, top: tuple[np.ndarray, np.ndarray, float] | None = None) -> tuple[np.ndarray, bool]:
     """``landing_pose`` of the pre-fall model Q_O, N_O (M,3) from rest pose X_r (4,4) about h (3,); when that model
     has no leading face, the leading face of a box (``box_base_O``, see ``landing_pose``) is taken from its sides
     only if the body rests on the table at the settled frame (``on_table``: the model Q_i (K,3, in O) under the
     tracked pose X_i (4,4) within ``rest`` (m) of the table plane). A box held in the air (carried by a gripper and
     turned) is not landing: its join is left without a face, as without ``box_base_O``. ``Q_i`` may be a callable
-    returning that model, called only when the pre-fall model has no leading face. Returns (pose, face)."""
+    returning that model, called only when the pre-fall model has no leading face. With ``top`` = (P_W, N_W (N,3):
+    the settled frame's points and normals in W, max_shift in m), a join on a face taken from the box's sides is
+    moved by the drop the face on top shows (``top_face_drop``). Returns (pose, face)."""
     X, face = landing_pose(X_r, h, Q_O, N_O, table_height)
     if face or not on_table(X_i, Q_i() if callable(Q_i) else Q_i, table_height, rest):
         return X, face
-    return landing_pose(X_r, h, Q_O, N_O, table_height, box_base_O=box_base_O)
+    X, face = landing_pose(X_r, h, Q_O, N_O, table_height, box_base_O=box_base_O)
+    if face and top is not None:
+        X = top_face_drop(X, X_r, Q_O, N_O, top[0], top[1], table_height, top[2])
+    return X, face
+
+
+def top_face_drop(X: np.ndarray, X_r: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, P_W: np.ndarray,
+                  N_W: np.ndarray, table_height: float, max_shift: float, cos_min: float = np.cos(np.radians(20.0)),
+                  min_pts: int = 30) -> np.ndarray:
+    """A box's join on a leading face placed at the model's extent (``box_face``) corrected by the face on top of
+    the landed box. That face lies at least that far (the model may lack the strip of the box next to a face it never
+    saw), so the join turns about an edge δ short of the true one and leaves the box δ short along the face's
+    horizontal normal u and δ low: a turn about a line through p by R moves x to p + R(x − p), and moving p by δu
+    moves the result by δ(u − R u) = δ(u + z), since R lays u on −z. The box lies on that face, so the height of the
+    face on top above the table is the box's thickness across it, measured by the settled frame: δ is the median
+    height of the frame's points P_W (N,3, in W) whose normals N_W lie within acos(``cos_min``) of +z (1 cm or more
+    above the table) minus that of the pre-fall model's (Q_O, N_O (M,3), in O) under the join X (4,4), with at least
+    ``min_pts`` of each. u is the horizontal direction of the join's turn from the rest pose X_r (4,4)
+    (``tip_direction``). X moved by δ(u + z) when 0 < δ ≤ ``max_shift`` (m); else X unchanged (the face seen on top
+    in the pre-fall model only when the box tips away from the camera: the trailing face, the one it showed)."""
+    Nm = N_O @ X[:3, :3].T
+    zm = Q_O[Nm[:, 2] > cos_min] @ X[2, :3] + X[2, 3]
+    zf = P_W[(N_W[:, 2] > cos_min) & (P_W[:, 2] > table_height + 0.01), 2]
+    tip = tip_direction(X_r, X)
+    if len(zm) < min_pts or len(zf) < min_pts or tip is None:
+        return X
+    d = float(np.median(zf) - np.median(zm))
+    if not 0.0 < d <= max_shift:
+        return X
+    X = X.copy()
+    X[:3, 3] += d * (tip[0] + np.array([0.0, 0.0, 1.0]))
+    return X
 
 
 def reach_along(X: np.ndarray, Q_O: np.ndarray, P_W: np.ndarray, f: np.ndarray, max_shift: float,

@@ -488,8 +488,10 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     M = _model_from(pre, cfg.model_voxel)
     if cfg.resettle_box_face:  # a box's leading face from its sides, only for a body resting on the table at frame i
         box = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])  # the base it stood on: its normal in O
+        top = (o.P_W, o.N_W, cfg.resettle_max_shift) if cfg.resettle_box_drop else None  # the face on top
         Xj, face = box_landing_pose(X[r], h, M.Q, M.N, session.table_height, box,
-                                    X[i], lambda: _model_from(keyframes, cfg.model_voxel).Q, cfg.resettle_box_rest)
+                                    X[i], lambda: _model_from(keyframes, cfg.model_voxel).Q, cfg.resettle_box_rest,
+                                    top=top)
     else:
         Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height)
     Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift)
