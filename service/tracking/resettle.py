@@ -627,6 +627,33 @@ def side_pose(X: np.ndarray, Q_O: np.ndarray, base_n_O: np.ndarray, tol: float =
     return make_X(Rc @ R, c + Rc @ (t - c)), float(np.degrees(ang))
 
 
+def box_rest_face(Q_O: np.ndarray, N_O: np.ndarray, base_n_O: np.ndarray, down_O: np.ndarray) -> np.ndarray | None:
+    """The outward unit normal (3,) in O of the side of a box it lies on when that side was never seen: the side
+    direction of the box (``box_face``: the directions at right angles of its seen flat sides, squared to the base
+    normal ``base_n_O`` (3,)) nearest the downward direction ``down_O`` (3,) at the settled pose. Q_O, N_O (M,3) the
+    model in O. None when the model shows no box (no flat side, or sides not at right angles)."""
+    plane = box_face(Q_O, N_O, down_O / np.linalg.norm(down_O), base_n_O)
+    return None if plane is None else plane[0]
+
+
+def down_pose(X: np.ndarray, Q_O: np.ndarray, n_O: np.ndarray, tol: float = 0.01) -> tuple[np.ndarray, float]:
+    """Pose X (4,4) turned by the least rotation that lays the unit normal ``n_O`` (3,) (in O: the face the object
+    lies on) on −z, about the centroid of the model's points Q_O (M,3) within ``tol`` of its lowest point at X (the
+    contact with the table): a box at rest on a face has it flat on the table (two tilts; the yaw, the horizontal
+    position and the contact's height kept). ``flush_pose`` without the face's points, for a face never seen.
+    Returns (the pose, the tilt removed in degrees)."""
+    R, t = X[:3, :3], X[:3, 3]
+    a = R @ (n_O / np.linalg.norm(n_O))
+    b = np.array([0.0, 0.0, -1.0])
+    v = np.cross(a, b)
+    s = float(np.linalg.norm(v))
+    ang = float(np.arctan2(s, a @ b))
+    Rc = so3_exp(v / s * ang) if s > 1e-12 else np.eye(3)
+    P = Q_O @ R.T + t
+    c = P[P[:, 2] < P[:, 2].min() + tol].mean(0)
+    return make_X(Rc @ R, c + Rc @ (t - c)), float(np.degrees(ang))
+
+
 def has_flat_side(Q_O: np.ndarray, N_O: np.ndarray, base_n_O: np.ndarray) -> bool:
     """Whether the model (Q_O, N_O (M,3)) has a flat face (``face_plane``) among its sides, the normals within 17° of
     perpendicular to the base normal ``base_n_O`` (3,): a prism, whose base stands vertical when it lies on a side

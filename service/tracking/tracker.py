@@ -610,7 +610,8 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
     along its own faces is seen by its print, not by its shape. Updates X, tracked, frac, rmse, keyframes and carver
     in place; returns the rebuilt model, or None when no frame changed."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import flush_pose, landed_face, planar_register, rests_flat, side_pose
+    from service.tracking.resettle import (box_rest_face, down_pose, flush_pose, landed_face, planar_register,
+                                           rests_flat, side_pose)
 
     base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
     done: list[int] = []
@@ -627,11 +628,16 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
             continue  # a curved body (an egg): no flat face to rest on
         face = landed_face(M.Q, M.N, X[i], session.table_height, tol=0.03, base_n_O=base_n,
                            square_deg=cfg.resettle_flush_square_deg)
+        box = None  # the face it lies on, never seen, from a box's sides (resettle_box_flush)
+        if face is None and cfg.resettle_box_flush:
+            box = box_rest_face(M.Q, M.N, base_n, down)
         for j in range(i, end):
             if not tracked[j] or len(obs[j].P_W) < cfg.min_points:
                 continue
             if face is not None:
                 Xf, tilt = flush_pose(X[j], face[0], face[1], session.table_height)
+            elif box is not None:  # a box on a side it never showed: that side flat on the table
+                Xf, tilt = down_pose(X[j], M.Q, box)
             else:  # the face it lies on was never seen: only its base, vertical on a side
                 Xf, tilt = side_pose(X[j], M.Q, base_n)
             if tilt > cfg.resettle_flush_deg:

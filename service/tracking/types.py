@@ -260,6 +260,11 @@ class TrackingConfig:
     # edge d short and leaves the box d short along the tipping direction and d low; the settled frame's face on top
     # (the trailing face, seen before the fall) measured d (development 1564: 10.8 mm against the join's 10.8 mm low)
     resettle_box_drop: bool = False
+    # the settled stretch of a box lying on a side it never showed (resettle.box_rest_face, down_pose): that side (the
+    # box direction of its seen flat sides nearest the downward one) laid flat on the table in the flush step (two
+    # tilts) instead of only its base made vertical (one tilt: the roll about the box's long axis is left free;
+    # development 1617 1.13 deg of it over the settled stretch)
+    resettle_box_flush: bool = False
     # support closure (visible.support_feet): the SDF's initial hull also takes the foot of every observed surface
     # point on the table plane at frame 0 (the object rests on the table, so the never-seen space below what was
     # seen is object unless a keyframe saw it empty, which the carving then removes); needs below_table_outside.
@@ -448,6 +453,8 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not isinstance(self.resettle_box_face, bool):
             raise ValueError(f"TrackingConfig.resettle_box_face must be a bool, not {self.resettle_box_face!r}")
+        if not isinstance(self.resettle_box_flush, bool):
+            raise ValueError(f"TrackingConfig.resettle_box_flush must be a bool, not {self.resettle_box_flush!r}")
         if not isinstance(self.resettle_box_drop, bool):
             raise ValueError(f"TrackingConfig.resettle_box_drop must be a bool, not {self.resettle_box_drop!r}")
         if not 0.0 <= self.resettle_box_rest < float("inf"):

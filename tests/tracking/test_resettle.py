@@ -591,3 +591,33 @@ def test_box_face_join_moved_by_the_drop_of_the_face_on_top():
 
     with pytest.raises(ValueError, match="resettle_box_drop"):
         TrackingConfig(resettle_box_drop=1)
+
+
+def test_box_lying_on_its_unseen_side_laid_flat():
+    """The box that tipped away from the camera lies on its +y side, which no view saw. A pose rolled 2° about its
+    long axis (the tipping direction) and tilted 1.5° about the tip axis: making the base vertical (``side_pose``)
+    removes only the tilt; laying the side found from the box's seen sides (``box_rest_face``) flat (``down_pose``)
+    removes both, and keeps the yaw. A model with no box (a bottle's side) gives no face."""
+    from service.tracking.resettle import box_rest_face, down_pose, side_pose
+
+    table = 0.0
+    Q, Nq = box_faces(z_min=-0.01)
+    vis = (Nq @ np.array([0.6, -1.0, 0.4])) > 0  # top, −y and +x: the +y face is hidden
+    Q, Nq = Q[vis], Nq[vis]
+    X_r = make_X(np.eye(3), np.array([0.4, 0.1, table + SIZE[2] / 2]))
+    truth = settled_truth(X_r, table)  # on the +y side, its long axis (z of O) along the tipping direction
+    base_O = np.array([0.0, 0.0, -1.0])
+    down_O = truth[:3, :3].T @ np.array([0.0, 0.0, -1.0])
+    n = box_rest_face(Q, Nq, base_O, down_O)
+    assert n is not None and n @ np.array([0.0, 1.0, 0.0]) > 0.9999
+    f = truth[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    hax = np.cross([0.0, 0.0, 1.0], f)
+    off = make_X(so3_exp(f * np.radians(2.0)) @ so3_exp(hax * np.radians(1.5)), np.zeros(3))
+    bad = off @ truth
+    Xs, _ = side_pose(bad, Q, base_O)
+    assert pose_distance(Xs, truth)[1] > 1.5  # the roll about the long axis is left
+    Xd, tilt = down_pose(bad, Q, n)
+    assert 2.0 < tilt < 3.0 and pose_distance(Xd, truth)[1] < 0.05
+    th, z = np.random.default_rng(7).uniform(-np.pi, np.pi, 4000), np.random.default_rng(8).uniform(-0.05, 0.09, 4000)
+    Nb = np.column_stack([np.cos(th), np.sin(th), np.zeros_like(th)])
+    assert box_rest_face(0.035 * Nb + np.outer(z, [0.0, 0.0, 1.0]), Nb, base_O, np.array([0.0, 1.0, 0.0])) is None
