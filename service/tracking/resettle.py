@@ -30,7 +30,9 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    angles, squared to the base, the side direction nearest f, at the model's extent along it) — only when the body
    rests on the table at frame i (``box_landing_pose``, ``on_table``: the lowest point of the tracker's model under
    the tracked pose at most ``resettle_box_rest`` above the table plane): a landing is a body coming to rest on the
-   table, and a box held in the air by a gripper, turned during a carry, is not landing.
+   table, and a box held in the air by a gripper, turned during a carry, is not landing. With ``resettle_box_drop``
+   (off) such a join is moved by the drop the face on top of the landed box shows (``top_face_drop``: a face placed
+   at the model's extent turns the box about an edge short of the true one, leaving it short and low).
 3. When the object has a leading face, the join differs from the tracked pose by more than ``min_deg`` /
    ``min_dist`` and puts no more of the pre-fall model where frame i sees the table or background than the tracked
    pose does (the frame's own depth as free space), frame i takes it, the keyframes from g0 on are dropped and
@@ -49,7 +51,8 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    the table; two tilts and the height), or, when that face was never seen, the base is made vertical
    (``side_pose``); the stretch's keyframes move with their frames, the model is rebuilt and every frame is
    registered again in the motions that keep it resting (``planar_register``: a turn about the vertical, a
-   horizontal shift).
+   horizontal shift). With ``resettle_box_flush`` (off) a box lying on a side it never showed has that side, found
+   from its seen sides (``box_rest_face``), laid flat (``down_pose``: two tilts) instead of only its base made vertical.
 7. The frames at rest before the settled frame (``resettle_flush_rest_tol``): the settled frame i comes
    ``delay`` frames after the last fast step, so the frames between the landing and i, at rest already, kept
    their own (fall or landing) poses. Walking back from i, every frame whose object points lie on frame i's

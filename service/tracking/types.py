@@ -258,12 +258,16 @@ class TrackingConfig:
     # ... and moved by the drop the face on top of the landed box shows (resettle.top_face_drop): the leading face taken
     # from the box's sides lies at the model's extent, short by the strip the model lacks, so the join turns about an
     # edge d short and leaves the box d short along the tipping direction and d low; the settled frame's face on top
-    # (the trailing face, seen before the fall) measured d (development 1564: 10.8 mm against the join's 10.8 mm low)
+    # (the trailing face, seen before the fall) measured d (development 1564: 10.8 mm against the join's 10.8 mm low).
+    # Off: the joins it moves come nearer the truth (fresh development 1720-1735: 12.6-40.9 -> 7.1-16.4 mm) but none
+    # of those was adopted; on the design sessions translation median -2.0 mm on 1571 and 1617, rotation median
+    # 1571 1.06 -> 1.56 deg and worst frames up (docs/tracking-findings.md "The offset a box-face join leaves")
     resettle_box_drop: bool = False
     # the settled stretch of a box lying on a side it never showed (resettle.box_rest_face, down_pose): that side (the
     # box direction of its seen flat sides nearest the downward one) laid flat on the table in the flush step (two
     # tilts) instead of only its base made vertical (one tilt: the roll about the box's long axis is left free;
-    # development 1617 1.13 deg of it over the settled stretch)
+    # development 1617 1.13 deg of it over the settled stretch). Off: design sessions rotation median 1617 1.64 -> 1.22
+    # deg, 1564 1.03 -> 0.83 deg; fresh development sessions -0.20..+0.18 deg median, worst translation up on 6 of 7
     resettle_box_flush: bool = False
     # support closure (visible.support_feet): the SDF's initial hull also takes the foot of every observed surface
     # point on the table plane at frame 0 (the object rests on the table, so the never-seen space below what was
