@@ -30,7 +30,9 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    angles, squared to the base, the side direction nearest f, at the model's extent along it) — only when the body
    rests on the table at frame i (``box_landing_pose``, ``on_table``: the lowest point of the tracker's model under
    the tracked pose at most ``resettle_box_rest`` above the table plane): a landing is a body coming to rest on the
-   table, and a box held in the air by a gripper, turned during a carry, is not landing.
+   table, and a box held in the air by a gripper, turned during a carry, is not landing. With ``resettle_box_drop``
+   (off) such a join is moved by the drop the face on top of the landed box shows (``top_face_drop``: a face placed
+   at the model's extent turns the box about an edge short of the true one, leaving it short and low).
 3. When the object has a leading face, the join differs from the tracked pose by more than ``min_deg`` /
    ``min_dist`` and puts no more of the pre-fall model where frame i sees the table or background than the tracked
    pose does (the frame's own depth as free space), frame i takes it, the keyframes from g0 on are dropped and
@@ -49,7 +51,8 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    the table; two tilts and the height), or, when that face was never seen, the base is made vertical
    (``side_pose``); the stretch's keyframes move with their frames, the model is rebuilt and every frame is
    registered again in the motions that keep it resting (``planar_register``: a turn about the vertical, a
-   horizontal shift).
+   horizontal shift). With ``resettle_box_flush`` (off) a box lying on a side it never showed has that side, found
+   from its seen sides (``box_rest_face``), laid flat (``down_pose``: two tilts) instead of only its base made vertical.
 7. The frames at rest before the settled frame (``resettle_flush_rest_tol``): the settled frame i comes
    ``delay`` frames after the last fast step, so the frames between the landing and i, at rest already, kept
    their own (fall or landing) poses. Walking back from i, every frame whose object points lie on frame i's
@@ -253,17 +256,50 @@ def on_table(X_WO: np.ndarray, Q_O: np.ndarray, table_height: float, tol: float)
 
 def box_landing_pose(X_r: np.ndarray, h: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, table_height: float,
                      box_base_O: np.ndarray, X_i: np.ndarray, Q_i: np.ndarray | Callable[[], np.ndarray],
-                     rest: float) -> tuple[np.ndarray, bool]:
+                     rest: float, top: tuple[np.ndarray, np.ndarray, float] | None = None) -> tuple[np.ndarray, bool]:
     """``landing_pose`` of the pre-fall model Q_O, N_O (M,3) from rest pose X_r (4,4) about h (3,); when that model
     has no leading face, the leading face of a box (``box_base_O``, see ``landing_pose``) is taken from its sides
     only if the body rests on the table at the settled frame (``on_table``: the model Q_i (K,3, in O) under the
     tracked pose X_i (4,4) within ``rest`` (m) of the table plane). A box held in the air (carried by a gripper and
     turned) is not landing: its join is left without a face, as without ``box_base_O``. ``Q_i`` may be a callable
-    returning that model, called only when the pre-fall model has no leading face. Returns (pose, face)."""
+    returning that model, called only when the pre-fall model has no leading face. With ``top`` = (P_W, N_W (N,3):
+    the settled frame's points and normals in W, max_shift in m), a join on a face taken from the box's sides is
+    moved by the drop the face on top shows (``top_face_drop``). Returns (pose, face)."""
     X, face = landing_pose(X_r, h, Q_O, N_O, table_height)
     if face or not on_table(X_i, Q_i() if callable(Q_i) else Q_i, table_height, rest):
         return X, face
-    return landing_pose(X_r, h, Q_O, N_O, table_height, box_base_O=box_base_O)
+    X, face = landing_pose(X_r, h, Q_O, N_O, table_height, box_base_O=box_base_O)
+    if face and top is not None:
+        X = top_face_drop(X, X_r, Q_O, N_O, top[0], top[1], table_height, top[2])
+    return X, face
+
+
+def top_face_drop(X: np.ndarray, X_r: np.ndarray, Q_O: np.ndarray, N_O: np.ndarray, P_W: np.ndarray,
+                  N_W: np.ndarray, table_height: float, max_shift: float, cos_min: float = np.cos(np.radians(20.0)),
+                  min_pts: int = 30) -> np.ndarray:
+    """A box's join on a leading face placed at the model's extent (``box_face``) corrected by the face on top of
+    the landed box. That face lies at least that far (the model may lack the strip of the box next to a face it never
+    saw), so the join turns about an edge δ short of the true one and leaves the box δ short along the face's
+    horizontal normal u and δ low: a turn about a line through p by R moves x to p + R(x − p), and moving p by δu
+    moves the result by δ(u − R u) = δ(u + z), since R lays u on −z. The box lies on that face, so the height of the
+    face on top above the table is the box's thickness across it, measured by the settled frame: δ is the median
+    height of the frame's points P_W (N,3, in W) whose normals N_W lie within acos(``cos_min``) of +z (1 cm or more
+    above the table) minus that of the pre-fall model's (Q_O, N_O (M,3), in O) under the join X (4,4), with at least
+    ``min_pts`` of each. u is the horizontal direction of the join's turn from the rest pose X_r (4,4)
+    (``tip_direction``). X moved by δ(u + z) when 0 < δ ≤ ``max_shift`` (m); else X unchanged (the face seen on top
+    in the pre-fall model only when the box tips away from the camera: the trailing face, the one it showed)."""
+    Nm = N_O @ X[:3, :3].T
+    zm = Q_O[Nm[:, 2] > cos_min] @ X[2, :3] + X[2, 3]
+    zf = P_W[(N_W[:, 2] > cos_min) & (P_W[:, 2] > table_height + 0.01), 2]
+    tip = tip_direction(X_r, X)
+    if len(zm) < min_pts or len(zf) < min_pts or tip is None:
+        return X
+    d = float(np.median(zf) - np.median(zm))
+    if not 0.0 < d <= max_shift:
+        return X
+    X = X.copy()
+    X[:3, 3] += d * (tip[0] + np.array([0.0, 0.0, 1.0]))
+    return X
 
 
 def reach_along(X: np.ndarray, Q_O: np.ndarray, P_W: np.ndarray, f: np.ndarray, max_shift: float,
@@ -588,6 +624,33 @@ def side_pose(X: np.ndarray, Q_O: np.ndarray, base_n_O: np.ndarray, tol: float =
     if turn is None:
         return X.copy(), 90.0
     v, s, ang = turn
+    Rc = so3_exp(v / s * ang) if s > 1e-12 else np.eye(3)
+    P = Q_O @ R.T + t
+    c = P[P[:, 2] < P[:, 2].min() + tol].mean(0)
+    return make_X(Rc @ R, c + Rc @ (t - c)), float(np.degrees(ang))
+
+
+def box_rest_face(Q_O: np.ndarray, N_O: np.ndarray, base_n_O: np.ndarray, down_O: np.ndarray) -> np.ndarray | None:
+    """The outward unit normal (3,) in O of the side of a box it lies on when that side was never seen: the side
+    direction of the box (``box_face``: the directions at right angles of its seen flat sides, squared to the base
+    normal ``base_n_O`` (3,)) nearest the downward direction ``down_O`` (3,) at the settled pose. Q_O, N_O (M,3) the
+    model in O. None when the model shows no box (no flat side, or sides not at right angles)."""
+    plane = box_face(Q_O, N_O, down_O / np.linalg.norm(down_O), base_n_O)
+    return None if plane is None else plane[0]
+
+
+def down_pose(X: np.ndarray, Q_O: np.ndarray, n_O: np.ndarray, tol: float = 0.01) -> tuple[np.ndarray, float]:
+    """Pose X (4,4) turned by the least rotation that lays the unit normal ``n_O`` (3,) (in O: the face the object
+    lies on) on −z, about the centroid of the model's points Q_O (M,3) within ``tol`` of its lowest point at X (the
+    contact with the table): a box at rest on a face has it flat on the table (two tilts; the yaw, the horizontal
+    position and the contact's height kept). ``flush_pose`` without the face's points, for a face never seen.
+    Returns (the pose, the tilt removed in degrees)."""
+    R, t = X[:3, :3], X[:3, 3]
+    a = R @ (n_O / np.linalg.norm(n_O))
+    b = np.array([0.0, 0.0, -1.0])
+    v = np.cross(a, b)
+    s = float(np.linalg.norm(v))
+    ang = float(np.arctan2(s, a @ b))
     Rc = so3_exp(v / s * ang) if s > 1e-12 else np.eye(3)
     P = Q_O @ R.T + t
     c = P[P[:, 2] < P[:, 2].min() + tol].mean(0)

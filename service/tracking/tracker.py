@@ -488,8 +488,10 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     M = _model_from(pre, cfg.model_voxel)
     if cfg.resettle_box_face:  # a box's leading face from its sides, only for a body resting on the table at frame i
         box = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])  # the base it stood on: its normal in O
+        top = (o.P_W, o.N_W, cfg.resettle_max_shift) if cfg.resettle_box_drop else None  # the face on top
         Xj, face = box_landing_pose(X[r], h, M.Q, M.N, session.table_height, box,
-                                    X[i], lambda: _model_from(keyframes, cfg.model_voxel).Q, cfg.resettle_box_rest)
+                                    X[i], lambda: _model_from(keyframes, cfg.model_voxel).Q, cfg.resettle_box_rest,
+                                    top=top)
     else:
         Xj, face = landing_pose(X[r], h, M.Q, M.N, session.table_height)
     Xj = face_offsets(Xj, M.Q, M.N, o.P_W, o.N_W, max_shift=cfg.resettle_max_shift)
@@ -608,7 +610,8 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
     along its own faces is seen by its print, not by its shape. Updates X, tracked, frac, rmse, keyframes and carver
     in place; returns the rebuilt model, or None when no frame changed."""
     from service.tracking.geometry import icp_result
-    from service.tracking.resettle import flush_pose, landed_face, planar_register, rests_flat, side_pose
+    from service.tracking.resettle import (box_rest_face, down_pose, flush_pose, landed_face, planar_register,
+                                           rests_flat, side_pose)
 
     base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
     done: list[int] = []
@@ -625,11 +628,16 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
             continue  # a curved body (an egg): no flat face to rest on
         face = landed_face(M.Q, M.N, X[i], session.table_height, tol=0.03, base_n_O=base_n,
                            square_deg=cfg.resettle_flush_square_deg)
+        box = None  # the face it lies on, never seen, from a box's sides (resettle_box_flush)
+        if face is None and cfg.resettle_box_flush:
+            box = box_rest_face(M.Q, M.N, base_n, down)
         for j in range(i, end):
             if not tracked[j] or len(obs[j].P_W) < cfg.min_points:
                 continue
             if face is not None:
                 Xf, tilt = flush_pose(X[j], face[0], face[1], session.table_height)
+            elif box is not None:  # a box on a side it never showed: that side flat on the table
+                Xf, tilt = down_pose(X[j], M.Q, box)
             else:  # the face it lies on was never seen: only its base, vertical on a side
                 Xf, tilt = side_pose(X[j], M.Q, base_n)
             if tilt > cfg.resettle_flush_deg:

@@ -255,6 +255,20 @@ class TrackingConfig:
     # face it now lies on, which the model may lack (that face was never seen, and heavy occlusion hides the seen
     # sides' edges near it): development 1564 7.9 mm under the true pose, 9.5 mm under the tracked one
     resettle_box_rest: float = 0.015
+    # ... and moved by the drop the face on top of the landed box shows (resettle.top_face_drop): the leading face taken
+    # from the box's sides lies at the model's extent, short by the strip the model lacks, so the join turns about an
+    # edge d short and leaves the box d short along the tipping direction and d low; the settled frame's face on top
+    # (the trailing face, seen before the fall) measured d (development 1564: 10.8 mm against the join's 10.8 mm low).
+    # Off: the joins it moves come nearer the truth (fresh development 1720-1735: 12.6-40.9 -> 7.1-16.4 mm) but none
+    # of those was adopted; on the design sessions translation median -2.0 mm on 1571 and 1617, rotation median
+    # 1571 1.06 -> 1.56 deg and worst frames up (docs/tracking-findings.md "The offset a box-face join leaves")
+    resettle_box_drop: bool = False
+    # the settled stretch of a box lying on a side it never showed (resettle.box_rest_face, down_pose): that side (the
+    # box direction of its seen flat sides nearest the downward one) laid flat on the table in the flush step (two
+    # tilts) instead of only its base made vertical (one tilt: the roll about the box's long axis is left free;
+    # development 1617 1.13 deg of it over the settled stretch). Off: design sessions rotation median 1617 1.64 -> 1.22
+    # deg, 1564 1.03 -> 0.83 deg; fresh development sessions -0.20..+0.18 deg median, worst translation up on 6 of 7
+    resettle_box_flush: bool = False
     # support closure (visible.support_feet): the SDF's initial hull also takes the foot of every observed surface
     # point on the table plane at frame 0 (the object rests on the table, so the never-seen space below what was
     # seen is object unless a keyframe saw it empty, which the carving then removes); needs below_table_outside.
@@ -452,6 +466,10 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not isinstance(self.resettle_box_face, bool):
             raise ValueError(f"TrackingConfig.resettle_box_face must be a bool, not {self.resettle_box_face!r}")
+        if not isinstance(self.resettle_box_flush, bool):
+            raise ValueError(f"TrackingConfig.resettle_box_flush must be a bool, not {self.resettle_box_flush!r}")
+        if not isinstance(self.resettle_box_drop, bool):
+            raise ValueError(f"TrackingConfig.resettle_box_drop must be a bool, not {self.resettle_box_drop!r}")
         if not 0.0 <= self.resettle_box_rest < float("inf"):
             raise ValueError(f"TrackingConfig.resettle_box_rest must be finite and >= 0 (m), not {self.resettle_box_rest!r}")
         if not self.resettle_delay >= 1:

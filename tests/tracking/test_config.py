@@ -20,6 +20,8 @@ def test_defaults_and_fast_are_valid():
     ({"sdf_silhouette_margin": -0.001}, ["sdf_silhouette_margin"]),
     ({"sdf_silhouette_drop": 1}, ["sdf_silhouette_drop"]),
     ({"resettle_box_face": 1}, ["resettle_box_face"]),
+    ({"resettle_box_drop": 1}, ["resettle_box_drop"]),
+    ({"resettle_box_flush": 1}, ["resettle_box_flush"]),
     ({"resettle_box_rest": -0.001}, ["resettle_box_rest"]),
     ({"resettle_box_rest": float("nan")}, ["resettle_box_rest"]),
 ])

@@ -539,3 +539,85 @@ def test_box_face_join_needs_the_body_resting_on_the_table():
     Xa, fa = landing_pose(X_r, h, Qa[va], Na[va], table)
     Xb, fb = box_landing_pose(X_r, h, Qa[va], Na[va], table, base_O, up @ truth, Qa[va], rest)
     assert fa and fb and np.array_equal(Xa, Xb)
+
+
+def test_box_face_join_moved_by_the_drop_of_the_face_on_top():
+    """The box that tips away from the camera, its model lacking the strip of 1 cm next to the leading face (the seen
+    sides end short of it): the face taken from the sides lies 1 cm short, so the join turns about an edge 1 cm short
+    and leaves the box 1 cm short along the tipping direction and 1 cm low. The settled frame sees the face on top
+    (the trailing face, −y, which the pre-fall model holds) 1 cm higher than the join puts it: with ``top``
+    (``resettle_box_drop``) the join is moved by that drop along the tipping direction and up, onto the truth; a drop
+    of the wrong sign (the frame's face lower) or a frame without a face on top changes nothing."""
+    from service.tracking.resettle import box_landing_pose, top_face_drop
+    from service.tracking.types import TrackingConfig
+
+    table = 0.02
+    X_r = make_X(so3_exp(np.array([0.0, 0.0, np.radians(25.0)])), np.array([0.4, 0.1, table + SIZE[2] / 2]))
+    Q, Nq = box_faces(z_min=-0.01)
+    vis = (Nq @ np.array([0.6, -1.0, 0.4])) > 0  # top, −y and +x: the +y face that leads is hidden
+    Q, Nq = Q[vis], Nq[vis]
+    short = Q[:, 1] < SIZE[1] / 2 - 0.01  # the model lacks the strip next to the leading face
+    Q, Nq = Q[short], Nq[short]
+    Rz = X_r[:3, :3]
+    e = Rz @ np.array([-1.0, 0.0, 0.0])
+    pivot = X_r[:3, 3] + Rz @ np.array([0.0, SIZE[1] / 2, -SIZE[2] / 2])
+    Rt = so3_exp(e * np.pi / 2)
+    truth = make_X(Rt @ Rz, pivot + Rt @ (X_r[:3, 3] - pivot))
+    h = so3_exp(np.array([0, 0, np.radians(7.0)])) @ e
+    base_O, rest = np.array([0.0, 0.0, -1.0]), 0.015
+    # the settled frame: the whole face on top (−y of the box) and the +x side, in W at the truth
+    Qt, Nt = box_faces()
+    seen = (Nt @ np.array([0.0, -1.0, 0.0]) > 0.9) | (Nt @ np.array([1.0, 0.0, 0.0]) > 0.9)
+    rng = np.random.default_rng(6)
+    P_W = Qt[seen] @ truth[:3, :3].T + truth[:3, 3] + rng.normal(0, 0.0005, (seen.sum(), 3))
+    N_W = Nt[seen] @ truth[:3, :3].T
+    X0, f0 = box_landing_pose(X_r, h, Q, Nq, table, base_O, truth, Q, rest)  # without the drop: 1 cm short and low
+    dt0 = truth[:3, 3] - X0[:3, 3]
+    f = Rt @ Rz @ np.array([0.0, 0.0, 1.0])  # the tipping direction: the box's top end now points along it
+    assert f0 and 0.008 < dt0 @ f < 0.012 and 0.008 < dt0[2] < 0.012, dt0
+    X1, f1 = box_landing_pose(X_r, h, Q, Nq, table, base_O, truth, Q, rest, top=(P_W, N_W, 0.03))
+    dt, da = pose_distance(X1, truth)
+    assert f1 and dt < 0.002 and da < 0.5, (dt, da)
+    assert np.array_equal(X1[:3, :3], X0[:3, :3])  # a shift only
+    # a frame whose face on top is lower than the join's (no drop) or that shows none: unchanged
+    low = P_W - np.array([0.0, 0.0, 0.015])
+    assert np.array_equal(top_face_drop(X0, X_r, Q, Nq, low, N_W, table, 0.03), X0)
+    side = N_W[:, 2] < 0.5
+    assert np.array_equal(top_face_drop(X0, X_r, Q, Nq, P_W[side], N_W[side], table, 0.03), X0)
+    # a drop beyond max_shift is left out; the option is off by default and validated
+    assert np.array_equal(top_face_drop(X0, X_r, Q, Nq, P_W, N_W, table, 0.005), X0)
+    assert not TrackingConfig().resettle_box_drop
+    import pytest
+
+    with pytest.raises(ValueError, match="resettle_box_drop"):
+        TrackingConfig(resettle_box_drop=1)
+
+
+def test_box_lying_on_its_unseen_side_laid_flat():
+    """The box that tipped away from the camera lies on its +y side, which no view saw. A pose rolled 2° about its
+    long axis (the tipping direction) and tilted 1.5° about the tip axis: making the base vertical (``side_pose``)
+    removes only the tilt; laying the side found from the box's seen sides (``box_rest_face``) flat (``down_pose``)
+    removes both, and keeps the yaw. A model with no box (a bottle's side) gives no face."""
+    from service.tracking.resettle import box_rest_face, down_pose, side_pose
+
+    table = 0.0
+    Q, Nq = box_faces(z_min=-0.01)
+    vis = (Nq @ np.array([0.6, -1.0, 0.4])) > 0  # top, −y and +x: the +y face is hidden
+    Q, Nq = Q[vis], Nq[vis]
+    X_r = make_X(np.eye(3), np.array([0.4, 0.1, table + SIZE[2] / 2]))
+    truth = settled_truth(X_r, table)  # on the +y side, its long axis (z of O) along the tipping direction
+    base_O = np.array([0.0, 0.0, -1.0])
+    down_O = truth[:3, :3].T @ np.array([0.0, 0.0, -1.0])
+    n = box_rest_face(Q, Nq, base_O, down_O)
+    assert n is not None and n @ np.array([0.0, 1.0, 0.0]) > 0.9999
+    f = truth[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    hax = np.cross([0.0, 0.0, 1.0], f)
+    off = make_X(so3_exp(f * np.radians(2.0)) @ so3_exp(hax * np.radians(1.5)), np.zeros(3))
+    bad = off @ truth
+    Xs, _ = side_pose(bad, Q, base_O)
+    assert pose_distance(Xs, truth)[1] > 1.5  # the roll about the long axis is left
+    Xd, tilt = down_pose(bad, Q, n)
+    assert 2.0 < tilt < 3.0 and pose_distance(Xd, truth)[1] < 0.05
+    th, z = np.random.default_rng(7).uniform(-np.pi, np.pi, 4000), np.random.default_rng(8).uniform(-0.05, 0.09, 4000)
+    Nb = np.column_stack([np.cos(th), np.sin(th), np.zeros_like(th)])
+    assert box_rest_face(0.035 * Nb + np.outer(z, [0.0, 0.0, 1.0]), Nb, base_O, np.array([0.0, 1.0, 0.0])) is None
