@@ -500,15 +500,11 @@ def test_box_face_refuses_curved_and_oblique_sides():
     assert box_face(np.concatenate(Ps), np.concatenate(Ns), f, b) is not None
 
 
-def test_box_face_join_needs_the_body_resting_on_the_table():
-    """A landing is a body coming to rest on the table. The box that tips away from the camera (its leading face never
-    seen) is joined on the face taken from its sides when, at the settled frame, the tracker's model under the tracked
-    pose rests on the table (here the truth, or the truth pushed 5 mm into the table); the same box held 3 cm above
-    the table (carried by a gripper and turned) is not joined. A model with its leading face seen is joined as before,
-    held or not (the gate is the box-face path's only)."""
-    from service.tracking import TrackingConfig
-    from service.tracking.resettle import box_landing_pose, on_table
-
+def _tipping_away():
+    """The box resting at 25° yaw on a table at 2 cm, about to tip about its +y bottom edge, away from a camera that
+    sees its top, −y and +x faces (the leading +y face hidden): (table, X_r, Q, Nq, Rz, Rt, truth, h) — the rest pose,
+    the seen model points and normals in O, the rest rotation, the quarter turn, the landed pose and a tip axis 7° off
+    the true one."""
     table = 0.02
     X_r = make_X(so3_exp(np.array([0.0, 0.0, np.radians(25.0)])), np.array([0.4, 0.1, table + SIZE[2] / 2]))
     Q, Nq = box_faces(z_min=-0.01)
@@ -520,6 +516,19 @@ def test_box_face_join_needs_the_body_resting_on_the_table():
     Rt = so3_exp(e * np.pi / 2)
     truth = make_X(Rt @ Rz, pivot + Rt @ (X_r[:3, 3] - pivot))
     h = so3_exp(np.array([0, 0, np.radians(7.0)])) @ e
+    return table, X_r, Q, Nq, Rz, Rt, truth, h
+
+
+def test_box_face_join_needs_the_body_resting_on_the_table():
+    """A landing is a body coming to rest on the table. The box that tips away from the camera (its leading face never
+    seen) is joined on the face taken from its sides when, at the settled frame, the tracker's model under the tracked
+    pose rests on the table (here the truth, or the truth pushed 5 mm into the table); the same box held 3 cm above
+    the table (carried by a gripper and turned) is not joined. A model with its leading face seen is joined as before,
+    held or not (the gate is the box-face path's only)."""
+    from service.tracking import TrackingConfig
+    from service.tracking.resettle import box_landing_pose, on_table
+
+    table, X_r, Q, Nq, Rz, Rt, truth, h = _tipping_away()
     assert TrackingConfig().resettle_box_face and TrackingConfig().resettle_box_rest == 0.015  # on by default
     base_O, rest = np.array([0.0, 0.0, -1.0]), TrackingConfig().resettle_box_rest
     up = np.eye(4)
@@ -551,19 +560,9 @@ def test_box_face_join_moved_by_the_drop_of_the_face_on_top():
     from service.tracking.resettle import box_landing_pose, top_face_drop
     from service.tracking.types import TrackingConfig
 
-    table = 0.02
-    X_r = make_X(so3_exp(np.array([0.0, 0.0, np.radians(25.0)])), np.array([0.4, 0.1, table + SIZE[2] / 2]))
-    Q, Nq = box_faces(z_min=-0.01)
-    vis = (Nq @ np.array([0.6, -1.0, 0.4])) > 0  # top, −y and +x: the +y face that leads is hidden
-    Q, Nq = Q[vis], Nq[vis]
+    table, X_r, Q, Nq, Rz, Rt, truth, h = _tipping_away()
     short = Q[:, 1] < SIZE[1] / 2 - 0.01  # the model lacks the strip next to the leading face
     Q, Nq = Q[short], Nq[short]
-    Rz = X_r[:3, :3]
-    e = Rz @ np.array([-1.0, 0.0, 0.0])
-    pivot = X_r[:3, 3] + Rz @ np.array([0.0, SIZE[1] / 2, -SIZE[2] / 2])
-    Rt = so3_exp(e * np.pi / 2)
-    truth = make_X(Rt @ Rz, pivot + Rt @ (X_r[:3, 3] - pivot))
-    h = so3_exp(np.array([0, 0, np.radians(7.0)])) @ e
     base_O, rest = np.array([0.0, 0.0, -1.0]), 0.015
     # the settled frame: the whole face on top (−y of the box) and the +x side, in W at the truth
     Qt, Nt = box_faces()
