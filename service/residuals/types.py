@@ -238,8 +238,10 @@ class ResidualConfig:
     # corrections at their null values, the candidate at its own fit) with the same budget as the "no effect" fit
     # (``nuisance_maxiter``), the lower training objective kept; "both" = "joint", and the "no effect" fit (and the
     # final refit's) restarted once from its end point with a fresh simplex, so that every hypothesis gets two
-    # Nelder-Mead runs of ``nuisance_maxiter``. Off leaves every output as before
-    nuisance_restart: str = "off"
+    # Nelder-Mead runs of ``nuisance_maxiter``. "off" leaves every output as before. Default "joint": on fresh strike
+    # seeds 811-814 it passed as many cells as off, accepted nothing more on plain cells, at 1.37x the wall and 1.50x
+    # the rollouts (docs/residuals-findings.md, "Each hypothesis with its own corrections")
+    nuisance_restart: str = "joint"
 
     def __post_init__(self) -> None:
         self._check_numbers()
