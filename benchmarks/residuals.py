@@ -516,7 +516,9 @@ def strike(args) -> None:
                                       unit_statistic=args.unit_statistic, folds=args.folds, **_refute_setting(args), **_sim_settings(args),
                                       **_path_settings(args),
                                       **({} if args.contact_gap_weight is None
-                                         else {"nuisance_contact_gap_weight": args.contact_gap_weight}))
+                                         else {"nuisance_contact_gap_weight": args.contact_gap_weight}),
+                                      **({} if args.nuisance_restart is None else {"nuisance_restart": args.nuisance_restart}),
+                                      **({} if args.nuisance_segments is None else {"max_nuisance_segments": args.nuisance_segments}))
             model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)) \
                 if args.learned_model else perturbed_model(ls)
             if args.true_split:
@@ -678,6 +680,12 @@ def main() -> None:
     st.add_argument("--contact-gap-weight", type=float, default=None, metavar="W",
                     help="ResidualConfig.nuisance_contact_gap_weight: the nuisance fit's contact-gap term (absent: the "
                          "config's default, 0 = off)")
+    st.add_argument("--nuisance-restart", choices=("off", "joint", "both"), default=None,
+                    help="ResidualConfig.nuisance_restart: the corrections refitted for each hypothesis (docs/residuals.md "
+                         "§3b; absent: the config's default)")
+    st.add_argument("--nuisance-segments", type=int, default=None, metavar="N",
+                    help="ResidualConfig.max_nuisance_segments: training blocks of the nuisance fit and the joint refit "
+                         "(absent: ResidualConfig.fast()'s 12)")
     for sp in (r, s, lb, st):
         sp.add_argument("--unit-statistic", choices=("relative", "mean"), default="relative",
                         help="held-out test over units (docs/residuals.md §4 rule 2): relative = bound on the mean of "

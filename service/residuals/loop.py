@@ -694,10 +694,9 @@ def _fit_nuisance(names: list[str], model: ObjectModel, base_effects: dict, ev: 
 
     z0 = (x0 - lo) / scale
     e0 = loss(z0)
-    simplex = [z0] + [np.clip(z0 + 0.12 * e, 0, 1) if z0[i] < 0.88 else z0 - 0.12 * e for i, e in enumerate(np.eye(len(lo)))]
-    res = minimize(loss, z0, method="Nelder-Mead",
-                   options={"maxfev": cfg.nuisance_maxiter, "initial_simplex": np.array(simplex), "xatol": 1e-3, "fatol": 1e-7})
-    z = np.clip(res.x, 0, 1)
+    z = _nelder_mead(loss, z0, 0.12, cfg.nuisance_maxiter)
+    if cfg.nuisance_restart == "both":  # the same budget as a candidate's joint refit: a second run from the end point
+        z = min((z, _nelder_mead(loss, z, 0.12, cfg.nuisance_maxiter)), key=loss)
     e1 = loss(z)
     if episodes is not None:  # kept when the objective (rollout + gap term) falls by the margin; reported: the rollout
         keep = e1 < (1.0 - cfg.min_rel_improvement) * e0
@@ -706,6 +705,18 @@ def _fit_nuisance(names: list[str], model: ObjectModel, base_effects: dict, ev: 
     if not (e1 < (1.0 - cfg.min_rel_improvement) * e0):
         return {}, e0, e0
     return unpack(lo + z * scale), e0, e1
+
+
+def _nelder_mead(loss, z0: np.ndarray, step: float, maxfev: int) -> np.ndarray:
+    """Nelder–Mead over the unit box (coordinates scaled to the bounds) from ``z0``, initial simplex of edge ``step``
+    along each axis (inwards at the far side), ≤ ``maxfev`` evaluations of ``loss``; the end point clipped to the box,
+    or ``z0`` when that is not lower."""
+    simplex = [z0] + [np.clip(z0 + step * e, 0, 1) if z0[i] < 1.0 - step else z0 - step * e
+                      for i, e in enumerate(np.eye(len(z0)))]
+    res = minimize(loss, z0, method="Nelder-Mead",
+                   options={"maxfev": maxfev, "initial_simplex": np.array(simplex), "xatol": 1e-3, "fatol": 1e-7})
+    z = np.clip(res.x, 0, 1)
+    return z if loss(z) < loss(z0) else z0
 
 
 def _refine_joint(nuis: dict[str, tuple], eff: Effect, theta, chosen: dict[str, tuple], input_model: ObjectModel,
@@ -744,10 +755,16 @@ def _refine_joint(nuis: dict[str, tuple], eff: Effect, theta, chosen: dict[str, 
         return cache[key]
 
     z0 = (x0 - lo) / scale
-    simplex = [z0] + [np.clip(z0 + 0.06 * e, 0, 1) if z0[i] < 0.94 else z0 - 0.06 * e for i, e in enumerate(np.eye(len(lo)))]
-    res = minimize(loss, z0, method="Nelder-Mead",
-                   options={"maxfev": cfg.nuisance_maxiter, "initial_simplex": np.array(simplex), "xatol": 1e-3, "fatol": 1e-7})
-    z = np.clip(res.x, 0, 1) if loss(res.x) < loss(z0) else z0
+    if cfg.nuisance_restart == "off":
+        simplex = [z0] + [np.clip(z0 + 0.06 * e, 0, 1) if z0[i] < 0.94 else z0 - 0.06 * e for i, e in enumerate(np.eye(len(lo)))]
+        res = minimize(loss, z0, method="Nelder-Mead",
+                       options={"maxfev": cfg.nuisance_maxiter, "initial_simplex": np.array(simplex), "xatol": 1e-3, "fatol": 1e-7})
+        z = np.clip(res.x, 0, 1) if loss(res.x) < loss(z0) else z0
+    else:  # also from "no change" (the hypothesis's own corrections, not the ones fitted without it); the lower kept
+        z_inh = _nelder_mead(loss, z0, 0.06, cfg.nuisance_maxiter)
+        x_null = np.concatenate([np.asarray(null_params(e, input_model), float) for e in effs[:-1]] + [x0[sizes[-2]:]])
+        z_new = _nelder_mead(loss, (np.clip(x_null, lo, hi) - lo) / scale, 0.12, cfg.nuisance_maxiter)
+        z = min((z_inh, z_new), key=loss)
     parts = unpack(lo + z * scale)
     return {e.name: parts[i] for i, e in enumerate(effs[:-1])}, eff.clip(parts[-1])
 

@@ -91,6 +91,8 @@ SPHERE_DRIVES: tuple[str, ...] = ("lead", "inverse")
 # ``loop.smooth_robot``): "box" = equal weights (Savitzky-Golay), "biweight" = (1 - (k / (H + 1))^2)^2, vanishing
 # smoothly at the window's edges
 ROBOT_SMOOTH_WEIGHTS: tuple[str, ...] = ("box", "biweight")
+# how the nuisance corrections are refitted for each hypothesis (``ResidualConfig.nuisance_restart``)
+NUISANCE_RESTARTS: tuple[str, ...] = ("off", "joint", "both")
 
 
 @dataclass(frozen=True)
@@ -230,6 +232,17 @@ class ResidualConfig:
     # blocks where either acts: the component both effects act on, the CoM's path through the slide and where it
     # stopped); when neither is better the greedy pick decides as before. Off leaves every output as before
     lookalike_refute: bool = False
+    # nuisance corrections refitted for each hypothesis (learned models, §3b; docs/residuals-findings.md, "Each
+    # hypothesis with its own corrections"): "off" = the candidate's joint refit starts from the corrections of the
+    # "no effect" fit, which already took up part of the effect; "joint" = it also starts from "no change" (the
+    # corrections at their null values, the candidate at its own fit) with the same budget as the "no effect" fit
+    # (``nuisance_maxiter``), the lower training objective kept; "both" = "joint", and the "no effect" fit (and the
+    # final refit's) restarted once from its end point with a fresh simplex, so that every hypothesis gets two
+    # Nelder-Mead runs of ``nuisance_maxiter``. "off" (default) leaves every output as before. "joint" changed no
+    # decision on fresh learned strike seeds 811-814 (1 of 16 cells pass either way) at 1.50x the rollouts, and one
+    # cell's wall grew 2.37x, over the 2x its rule allowed (docs/residuals-findings.md, "Each hypothesis with its own
+    # corrections")
+    nuisance_restart: str = "off"
 
     def __post_init__(self) -> None:
         self._check_numbers()
@@ -240,6 +253,8 @@ class ResidualConfig:
                              f"not {self.robot_smooth_weights!r}")
         if not isinstance(self.lookalike_refute, bool):
             raise ValueError(f"ResidualConfig.lookalike_refute must be a bool, not {self.lookalike_refute!r}")
+        if not (isinstance(self.nuisance_restart, str) and self.nuisance_restart in NUISANCE_RESTARTS):
+            raise ValueError(f"ResidualConfig.nuisance_restart must be one of {NUISANCE_RESTARTS}, not {self.nuisance_restart!r}")
         for name in ("max_base_error_rel_learned", "launch_speed", "launch_max_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ResidualConfig.{name} must be > 0, not {getattr(self, name)!r}")
