@@ -431,10 +431,6 @@ class TrackingConfig:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
         if not self.spin_max_deg >= 0:
             raise ValueError(f"TrackingConfig.spin_max_deg must be >= 0, not {self.spin_max_deg!r}")
-        if not isinstance(self.lie_level_views, bool):
-            raise ValueError(f"TrackingConfig.lie_level_views must be a bool, not {self.lie_level_views!r}")
-        if not isinstance(self.spin_cap_roll, bool):
-            raise ValueError(f"TrackingConfig.spin_cap_roll must be a bool, not {self.spin_cap_roll!r}")
         for name in ("sdf_band_px", "sdf_contradict_margin"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
@@ -456,20 +452,12 @@ class TrackingConfig:
                              f"{self.sdf_silhouette_back!r}")
         if self.sdf_silhouette_margin is not None and not self.sdf_silhouette_margin >= 0:
             raise ValueError(f"TrackingConfig.sdf_silhouette_margin must be None or >= 0, not {self.sdf_silhouette_margin!r}")
-        if not isinstance(self.sdf_silhouette_drop, bool):
-            raise ValueError(f"TrackingConfig.sdf_silhouette_drop must be a bool, not {self.sdf_silhouette_drop!r}")
         if not self.sdf_carve_value > 0:
             raise ValueError(f"TrackingConfig.sdf_carve_value must be > 0 (outside), not {self.sdf_carve_value!r}")
         for name in ("resettle_tip_deg", "resettle_min_tip_deg", "resettle_min_deg", "resettle_min_dist",
                      "resettle_max_shift", "resettle_seen"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
-        if not isinstance(self.resettle_box_face, bool):
-            raise ValueError(f"TrackingConfig.resettle_box_face must be a bool, not {self.resettle_box_face!r}")
-        if not isinstance(self.resettle_box_flush, bool):
-            raise ValueError(f"TrackingConfig.resettle_box_flush must be a bool, not {self.resettle_box_flush!r}")
-        if not isinstance(self.resettle_box_drop, bool):
-            raise ValueError(f"TrackingConfig.resettle_box_drop must be a bool, not {self.resettle_box_drop!r}")
         if not 0.0 <= self.resettle_box_rest < float("inf"):
             raise ValueError(f"TrackingConfig.resettle_box_rest must be finite and >= 0 (m), not {self.resettle_box_rest!r}")
         if not self.resettle_delay >= 1:
