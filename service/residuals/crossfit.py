@@ -229,6 +229,17 @@ def lookalike_refutation(round_res: list[tuple], folds: list, cfg: ResidualConfi
     return _judge_lookalikes(round_res, final, history, rnd, judge)
 
 
+def nuisance_blocks(train: list, f: int, cfg: ResidualConfig) -> list:
+    """The training blocks of fold ``f`` (0-based) that the nuisance corrections are fitted on: all of ``train``, or
+    ``cfg.max_nuisance_segments`` of them drawn without replacement (seeded by ``cfg.seed`` and the fold), in their
+    order."""
+    tr_n = list(train)
+    if len(tr_n) > cfg.max_nuisance_segments:
+        sub = np.random.default_rng(cfg.seed + 99 + 1000 * f).choice(len(tr_n), cfg.max_nuisance_segments, replace=False)
+        tr_n = [tr_n[i] for i in sorted(sub)]
+    return tr_n
+
+
 def held_out_parts(segs: list, n_traj: int, cfg: ResidualConfig) -> tuple[list[tuple[list, list]], list[np.ndarray]]:
     """[(train_f, held_f)], [units_f] of the held-out test: with ``folds`` = 1 the one seeded split
     (``loop.split_segments``) as a single fold, else the K folds of ``fold_segments``."""
@@ -264,10 +275,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
         if nuis_names:
             report(0.02 + 0.03 * f / K, (f"fold {f + 1}/{K}: " if kfold else "")
                    + "refitting the model's own uncertain parameters (nuisance)")
-            tr_n = list(fd.train)
-            if len(tr_n) > cfg.max_nuisance_segments:
-                sub = np.random.default_rng(cfg.seed + 99 + 1000 * f).choice(len(tr_n), cfg.max_nuisance_segments, replace=False)
-                tr_n = [tr_n[i] for i in sorted(sub)]
+            tr_n = nuisance_blocks(fd.train, f, cfg)
             fd.tr_n = tr_n
             fd.gap_segs = list(fd.train)
             fix, e0, e1 = _fit_nuisance(nuis_names, input_model, dict(input_effects), ev, tr_n, cfg, fd.gap_segs)
