@@ -529,12 +529,7 @@ def flush_pose(X: np.ndarray, F_O: np.ndarray, n_O: np.ndarray, table_height: fl
     rest on a flat face has that face flush with the table (two tilts and the height fixed; the yaw and the
     horizontal position kept). Returns (the pose, the tilt removed in degrees)."""
     R, t = X[:3, :3], X[:3, 3]
-    a = R @ n_O
-    b = np.array([0.0, 0.0, -1.0])
-    v = np.cross(a, b)
-    s = float(np.linalg.norm(v))
-    ang = float(np.arctan2(s, a @ b))
-    Rc = so3_exp(v / s * ang) if s > 1e-12 else np.eye(3)
+    Rc, ang = _lay_down(R @ n_O)
     c = (F_O @ R.T + t).mean(0)
     R2 = Rc @ R
     t2 = c + Rc @ (t - c)
@@ -625,9 +620,7 @@ def side_pose(X: np.ndarray, Q_O: np.ndarray, base_n_O: np.ndarray, tol: float =
         return X.copy(), 90.0
     v, s, ang = turn
     Rc = so3_exp(v / s * ang) if s > 1e-12 else np.eye(3)
-    P = Q_O @ R.T + t
-    c = P[P[:, 2] < P[:, 2].min() + tol].mean(0)
-    return make_X(Rc @ R, c + Rc @ (t - c)), float(np.degrees(ang))
+    return _turn_at_contact(X, Q_O, Rc, tol), float(np.degrees(ang))
 
 
 def box_rest_face(Q_O: np.ndarray, N_O: np.ndarray, base_n_O: np.ndarray, down_O: np.ndarray) -> np.ndarray | None:
@@ -645,16 +638,26 @@ def down_pose(X: np.ndarray, Q_O: np.ndarray, n_O: np.ndarray, tol: float = 0.01
     contact with the table): a box at rest on a face has it flat on the table (two tilts; the yaw, the horizontal
     position and the contact's height kept). ``flush_pose`` without the face's points, for a face never seen.
     Returns (the pose, the tilt removed in degrees)."""
-    R, t = X[:3, :3], X[:3, 3]
-    a = R @ (n_O / np.linalg.norm(n_O))
+    Rc, ang = _lay_down(X[:3, :3] @ (n_O / np.linalg.norm(n_O)))
+    return _turn_at_contact(X, Q_O, Rc, tol), float(np.degrees(ang))
+
+
+def _lay_down(a: np.ndarray) -> tuple[np.ndarray, float]:
+    """(Rc (3,3), angle (rad)): the least rotation that lays the direction a (3,) in W on −z."""
     b = np.array([0.0, 0.0, -1.0])
     v = np.cross(a, b)
     s = float(np.linalg.norm(v))
     ang = float(np.arctan2(s, a @ b))
-    Rc = so3_exp(v / s * ang) if s > 1e-12 else np.eye(3)
+    return (so3_exp(v / s * ang) if s > 1e-12 else np.eye(3)), ang
+
+
+def _turn_at_contact(X: np.ndarray, Q_O: np.ndarray, Rc: np.ndarray, tol: float) -> np.ndarray:
+    """Pose X (4,4) turned by Rc (3,3, in W) about the centroid of the model's points Q_O (M,3) within ``tol`` (m) of
+    its lowest point at X: the contact with the table stays where it is."""
+    R, t = X[:3, :3], X[:3, 3]
     P = Q_O @ R.T + t
     c = P[P[:, 2] < P[:, 2].min() + tol].mean(0)
-    return make_X(Rc @ R, c + Rc @ (t - c)), float(np.degrees(ang))
+    return make_X(Rc @ R, c + Rc @ (t - c))
 
 
 def has_flat_side(Q_O: np.ndarray, N_O: np.ndarray, base_n_O: np.ndarray) -> bool:
