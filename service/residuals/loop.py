@@ -755,16 +755,11 @@ def _refine_joint(nuis: dict[str, tuple], eff: Effect, theta, chosen: dict[str, 
         return cache[key]
 
     z0 = (x0 - lo) / scale
-    if cfg.nuisance_restart == "off":
-        simplex = [z0] + [np.clip(z0 + 0.06 * e, 0, 1) if z0[i] < 0.94 else z0 - 0.06 * e for i, e in enumerate(np.eye(len(lo)))]
-        res = minimize(loss, z0, method="Nelder-Mead",
-                       options={"maxfev": cfg.nuisance_maxiter, "initial_simplex": np.array(simplex), "xatol": 1e-3, "fatol": 1e-7})
-        z = np.clip(res.x, 0, 1) if loss(res.x) < loss(z0) else z0
-    else:  # also from "no change" (the hypothesis's own corrections, not the ones fitted without it); the lower kept
-        z_inh = _nelder_mead(loss, z0, 0.06, cfg.nuisance_maxiter)
+    z = _nelder_mead(loss, z0, 0.06, cfg.nuisance_maxiter)  # from the inherited corrections
+    if cfg.nuisance_restart != "off":  # also from "no change" (the hypothesis's own corrections); the lower kept
         x_null = np.concatenate([np.asarray(null_params(e, input_model), float) for e in effs[:-1]] + [x0[sizes[-2]:]])
         z_new = _nelder_mead(loss, (np.clip(x_null, lo, hi) - lo) / scale, 0.12, cfg.nuisance_maxiter)
-        z = min((z_inh, z_new), key=loss)
+        z = min((z, z_new), key=loss)
     parts = unpack(lo + z * scale)
     return {e.name: parts[i] for i, e in enumerate(effs[:-1])}, eff.clip(parts[-1])
 
