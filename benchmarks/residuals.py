@@ -741,6 +741,14 @@ def main() -> None:
                 ResidualConfig(**{field: v})
             except ValueError as e:
                 ap.error(f"--{flag.replace('_', '-')}: {e}")
+    for flag, field in (("nuisance_segments", "max_nuisance_segments"),
+                        ("contact_gap_weight", "nuisance_contact_gap_weight")):
+        v = getattr(args, flag, None)
+        if v is not None:
+            try:
+                ResidualConfig(**{field: v})
+            except ValueError as e:
+                ap.error(f"--{flag.replace('_', '-')}: {e}")
     if getattr(args, "restitution_threshold", None) is not None:
         try:
             ResidualConfig(restitution_threshold_mps=args.restitution_threshold)
