@@ -48,6 +48,9 @@ from _overrides import off_or_float
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"  # shared/ sits beside the repository
 REAL = Path(SHARED, "data/real/contactnets_cube_toss/data.npz")
+# the errors of a model "learned from the session" in `lab` (without --exact-model) and `strike --learned-model`
+# (``perturbed_model``'s keywords): every size × 1.06, inertia × 1.3, CoM 5 mm off
+LEARNED_ERRORS = {"scale": 1.06, "inertia_factor": 1.3, "com_shift": (0.004, -0.003, 0.0)}
 SIDE, MASS, MU = 0.1048, 0.37, 0.15
 TOSS_CANDIDATES = ("gravity_scale", "time_scale", "table_tilt", "table_offset", "restitution",
                    "linear_damping", "angular_damping", "friction_table", "com_offset")
@@ -325,8 +328,7 @@ def lab(args) -> None:
             spec = SynthSpec(object=args.object, interaction=args.interaction, seed=seed, preset="tiny",
                              n_frames=args.frames, effects=HiddenEffects(**hidden))
             ls = lab_session(spec)
-            model = perturbed_model(ls) if args.exact_model else perturbed_model(
-                ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0))
+            model = perturbed_model(ls) if args.exact_model else perturbed_model(ls, **LEARNED_ERRORS)
             out = run(ResidualInputs(model, (ls.trajectory,), ls.table_height, robot=(ls.robot,)),
                       dataclasses.replace(cfg, seed=seed))
             ok = out.accepted == ((name,) if name else ())
@@ -346,10 +348,6 @@ def lab(args) -> None:
                   f"corrections {corr or '-'}; {'OK' if ok else 'WRONG'}; "
                   f"{time.time() - t0:.0f} s wall, {resource.getrusage(resource.RUSAGE_SELF).ru_utime - c0:.0f} s cpu", flush=True)
 
-
-# the errors a model learned from the session is given in `strike --learned-model` (``perturbed_model``'s keywords):
-# every size × 1.06, inertia × 1.3, CoM 5 mm off
-LEARNED_ERRORS = {"scale": 1.06, "inertia_factor": 1.3, "com_shift": (0.004, -0.003, 0.0)}
 
 STRIKE_CASES = {
     # name: (hidden effects, effect that should be accepted, parameter key, truth, candidates)

@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from residuals import LEARNED_ERRORS
 from tests.residuals.synthlab import lab_session, perturbed_model
 from service.synth.types import HiddenEffects, SynthSpec
 from service.residuals.effects import NUISANCE_LEARNED, principal_axes, scale_model
@@ -27,7 +29,7 @@ for seed in [int(s) for s in sys.argv[2:]]:
     ls = lab_session(SynthSpec(object="baking_box", interaction="strike", seed=seed, preset="tiny", n_frames=900, friction_object_table=0.15,
                                effects=HiddenEffects(**HID[case])), pose_noise_m=5e-4, pose_noise_rad=5e-3)
     cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3, seed=seed, nuisance=NUISANCE_LEARNED, folds=2)
-    model = perturbed_model(ls, scale=1.06, inertia_factor=1.3, com_shift=(0.004, -0.003, 0.0)); true = perturbed_model(ls)
+    model = perturbed_model(ls, **LEARNED_ERRORS); true = perturbed_model(ls)
     inputs = ResidualInputs(model, (ls.trajectory,), ls.table_height, robot=(ls.robot,))
     inputs = dataclasses.replace(inputs, robot=tuple(L.smooth_robot(r, cfg) for r in inputs.robot))
     modes = [classify(model, tr, inputs.table_height, inputs.robot[k], cfg) for k, tr in enumerate(inputs.trajectories)]
