@@ -415,12 +415,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     if cfg.refine_rounds > 0 and len(keyframes) > 2:
         _report(progress, 0.62, "refining keyframe poses")
         for _ in range(cfg.refine_rounds):
-            for k in range(1, len(keyframes)):
-                others = _model_from([kf for j, kf in enumerate(keyframes) if j != k], cfg.model_voxel)
-                kf = keyframes[k]
-                r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, **{**icp_kw, "dist0": 0.015})
-                if _good(r, cfg):
-                    _place_keyframe(kf, r.X_WO, carver)
+            _refine_keyframes(keyframes, cfg, carver, icp_kw)
             model = _model_from(keyframes, cfg.model_voxel)
     if cfg.final_pass:
         for i in range(1, N):
@@ -950,6 +945,19 @@ def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConf
                        fall_rate_deg=cfg.spin_fall_rate_deg, fall_min_deg=cfg.spin_fall_min_deg,
                        fall_edge_deg=cfg.spin_fall_edge_deg, fall_tol_deg=cfg.spin_fall_tol_deg, **common, **graph)
     return res
+
+
+def _refine_keyframes(keyframes: list[Keyframe], cfg: TrackingConfig, carver: "FreeSpace | None", icp_kw: dict
+                      ) -> None:
+    """One leave-one-out round: every keyframe but the first registered (its points P_W, from its pose X_WO) to the
+    model of the others, its correspondence radius starting at ``refine_dist0`` (m) and shrinking to
+    ``icp_dist_min``; a good registration (``_good``) gives it its new pose (``_place_keyframe``). In place."""
+    for k in range(1, len(keyframes)):
+        others = _model_from([kf for j, kf in enumerate(keyframes) if j != k], cfg.model_voxel)
+        kf = keyframes[k]
+        r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, **{**icp_kw, "dist0": cfg.refine_dist0})
+        if _good(r, cfg):
+            _place_keyframe(kf, r.X_WO, carver)
 
 
 def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], carver: "FreeSpace | None",

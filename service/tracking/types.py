@@ -102,6 +102,11 @@ class TrackingConfig:
     kf_min_inlier_frac: float = 0.5
     grow_dist: float = 0.015  # points farther than this from the model are not added (mask noise)
     refine_rounds: int = 2  # leave-one-out keyframe refinement rounds after the bundle adjustment (0: off)
+    # starting correspondence radius (m) of that refinement's ICP (it shrinks to icp_dist_min); off at 0.015 (the
+    # former fixed value). A keyframe's points on surface only it saw (a tilt turns a face into view) find other
+    # keyframes' surface 6-15 mm away and pull its pose (docs/tracking-findings.md, "Worst frames of pivots just
+    # over 5°"); icp_dist_min (0.006) matches only within the displacement a pose already registered can be off by
+    refine_dist0: float = 0.015
     ba_iters: int = 10  # keyframe bundle adjustment (service.tracking.posegraph) iterations (0: off)
     ba_huber: float = 0.002  # Huber threshold of its point-to-plane residuals
     final_pass: bool = True  # re-register every frame against the final model
@@ -401,6 +406,10 @@ class TrackingConfig:
                      "landing_table_margin", "landing_table_frac", "landing_seen_frac"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
+        if not (isinstance(self.refine_dist0, (int, float)) and not isinstance(self.refine_dist0, bool)
+                and self.icp_dist_min <= self.refine_dist0 < float("inf")):
+            raise ValueError(f"TrackingConfig.refine_dist0 must be finite and >= icp_dist_min = {self.icp_dist_min} (m), "
+                             f"not {self.refine_dist0!r}")
         for name in ("spin_features", "spin_min_votes", "spin_smooth"):
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
