@@ -262,8 +262,8 @@ def base_rim(Q: np.ndarray, a: np.ndarray, base_h: float, bin_m: float = 0.005, 
 def rim_landing(X: np.ndarray, a: np.ndarray, b_O: np.ndarray, radius: float, table_z: float
                 ) -> np.ndarray | None:
     """(4,4) X_WO: the pose X (4,4) of a falling body of revolution (axis a (3,) in O, base centre b_O (3,) in O,
-    base radius ``radius`` m) turned about the horizontal line through its base rim's pivot, put on the table at
-    height table_z, until its axis is horizontal (comment above); None when the axis is vertical in X (no tipping
+    base radius ``radius`` m), moved vertically until its base rim's pivot is on the table at height table_z, turned
+    about the horizontal line through the pivot until its axis is horizontal (comment above); None when the axis is vertical in X (no tipping
     direction) or already horizontal."""
     w = X[:3, :3] @ a
     z = np.array([0.0, 0.0, 1.0])
@@ -275,10 +275,11 @@ def rim_landing(X: np.ndarray, a: np.ndarray, b_O: np.ndarray, radius: float, ta
         return None
     Rd, _ = lay
     p = X[:3, :3] @ b_O + X[:3, 3] + radius * down / np.linalg.norm(down)
+    t = X[:3, 3] + np.array([0.0, 0.0, table_z - p[2]])  # the body moved vertically until its pivot is on the table
     p[2] = table_z
     out = X.copy()
     out[:3, :3] = Rd @ X[:3, :3]
-    out[:3, 3] = p + Rd @ (X[:3, 3] - p)
+    out[:3, 3] = p + Rd @ (t - p)
     return out
 
 
