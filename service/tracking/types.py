@@ -345,7 +345,9 @@ class TrackingConfig:
     # turned pose replaces it (the fall's keyframes dropped, the frame a keyframe with all its points;
     # tracker._lost_landing; docs/tracking-findings.md "Bottle topples lost in the fall: the landing by the turn about
     # the base rim")
-    lost_land: bool = False
+    lost_land: bool = True  # on: design bottle topples 1692, 1693, 1695 89.5/39.7/112.8 -> 4.2/3.9/4.8 deg median,
+    # 68.4/101.4/65.2 -> 10.6/7.5/3.5 mm; judge 1780 28.66 -> 3.90 deg, 71.60 -> 16.07 mm; 1787 96.97 -> 16.51 mm
+    # (24.52 -> 28.84 deg, surface 1.52 -> 4.74 mm); 15 of 18 design and 11 of 13 judge sessions identical
     lost_land_tilt_deg: float = 20.0
     lost_land_deg: float = 30.0
     lost_land_dist: float = 0.03
