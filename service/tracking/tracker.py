@@ -10,7 +10,9 @@ Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth,
    merged in O on a voxel grid), with the RANSAC inliers as point-to-point terms; from every candidate, the
    best fit (inlier fraction, then residual) wins;
 4. lost-track test: too few points, inlier fraction < min_inlier_frac or residual > max_rmse. Lost frames are
-   re-localised from the last tracked pose and against all keyframes' features;
+   re-localised from the last tracked pose and against all keyframes' features; a re-acquisition after a lost fall
+   of a body of revolution far from the fall's landing about its base rim takes that landing (``lost_land``,
+   ``_lost_landing``);
 5. keyframes: a well-tracked frame far (angle/translation) from every keyframe or showing new surface adds
    its points (those within grow_dist of the model, which rejects mask noise) to the model.
 Drift is bounded by (a) frame-to-model rather than frame-to-frame registration, (b) a bundle adjustment of

@@ -339,8 +339,10 @@ class TrackingConfig:
     # a fall the loop loses (the frames after the landing show a part of a body of revolution the model does not hold,
     # or holds misplaced): a re-acquisition after the loss, when the last tracked poses fall (ẑ_O tilted by at least
     # lost_land_tilt_deg and tilting faster than settle_fall_deg per frame over the last 3 tracked steps) of a model
-    # that is a body of revolution about ẑ_O (κ < spin_flat_kappa) and the fall has had the frames to end at its rate,
-    # is compared with the last fall pose turned about its base rim's pivot onto the table (lying.rim_landing): more
+    # that is a body of revolution about ẑ_O (κ < spin_flat_kappa), no earlier than a uniform cylinder of the model's
+    # height and radius takes to topple from there at that rate (lying.topple_time), is compared with the last fall
+    # pose moved down until its base rim's pivot is on the table and turned about it until the axis is horizontal
+    # (lying.rim_landing): more
     # than lost_land_deg between their axes or lost_land_dist between their base centres along the axis and the
     # turned pose replaces it (the fall's keyframes dropped, the frame a keyframe with all its points;
     # tracker._lost_landing; docs/tracking-findings.md "Bottle topples lost in the fall: the landing by the turn about
@@ -455,7 +457,8 @@ class TrackingConfig:
             if not getattr(self, name) >= 0:
                 raise ValueError(f"TrackingConfig.{name} must be >= 0, not {getattr(self, name)!r}")
         if not 0 < self.lost_land_tilt_deg < 90:
-            raise ValueError(f"TrackingConfig.lost_land_tilt_deg must be in (0, 90) degrees, not {self.lost_land_tilt_deg!r}")
+            raise ValueError("TrackingConfig.lost_land_tilt_deg must be in (0, 90) degrees, "
+                             f"not {self.lost_land_tilt_deg!r}")
         for name in ("lost_land_deg", "lost_land_dist"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"TrackingConfig.{name} must be > 0, not {getattr(self, name)!r}")
