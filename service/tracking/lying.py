@@ -103,16 +103,25 @@ def lying_frames(X_WO: np.ndarray, a: np.ndarray, p_O: np.ndarray, radius: float
     return settled & low
 
 
-def level_pose(X: np.ndarray, a: np.ndarray, p_O: np.ndarray) -> tuple[np.ndarray, float]:
-    """(pose (4,4), angle (rad)): the pose X (4,4) turned about the horizontal line through its point p_O (3,) (in
-    O) by the smallest rotation that makes its axis a (3,) horizontal in W."""
-    turn = horizontal_turn(X[:3, :3] @ a)
+def _lay_flat(a_W: np.ndarray) -> tuple[np.ndarray, float] | None:
+    """(R (3,3), angle (rad)): the least rotation that makes the unit vector a_W (3,) horizontal
+    (``transforms.horizontal_turn``, Rodrigues' formula); None when a_W is vertical or already horizontal."""
+    turn = horizontal_turn(a_W)
     if turn is None or turn[1] < 1e-12:
-        return X.copy(), 0.0
+        return None
     v, s, th = turn
     k = v / s
     K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    Rd = np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * K @ K
+    return np.eye(3) + np.sin(th) * K + (1.0 - np.cos(th)) * K @ K, th
+
+
+def level_pose(X: np.ndarray, a: np.ndarray, p_O: np.ndarray) -> tuple[np.ndarray, float]:
+    """(pose (4,4), angle (rad)): the pose X (4,4) turned about the horizontal line through its point p_O (3,) (in
+    O) by the smallest rotation that makes its axis a (3,) horizontal in W."""
+    lay = _lay_flat(X[:3, :3] @ a)
+    if lay is None:
+        return X.copy(), 0.0
+    Rd, th = lay
     p = X[:3, :3] @ p_O + X[:3, 3]
     out = X.copy()
     out[:3, :3] = Rd @ X[:3, :3]
@@ -215,3 +224,92 @@ def level_lying(X_WO: np.ndarray, Q: np.ndarray, table_z: float, axis_O: np.ndar
         if abs(th) <= np.radians(max_deg):
             out[i], done[i] = Xi, True
     return out, done
+
+
+# ---- a fall the loop loses: the landing carried by the turn about the base rim (``lost_land``) ----------------------
+#
+# A body of revolution that stood on its base and topples turns about the point of its base rim that stays on the
+# table (the pivot) until its side meets the table: for a body whose widest straight stretch starts at the base (a
+# bottle, a can), the axis is then horizontal at the base radius r above the table and the base centre stands above
+# the pivot. From a pose X_a of the fall (axis a_W tilted by θ toward the horizontal direction f), that is the turn
+# about the horizontal line through the pivot (the lowest point of the base rim, r (cos θ f − sin θ ẑ) from the base
+# centre, put on the table) by the least rotation that makes a_W horizontal (90° − θ). Where the loop loses the fall,
+# the frames after the landing show the lower part of the body that the model does not hold (or holds misplaced), so
+# a re-acquisition can lay it along the modelled upper part (slid 60-110 mm along the axis or turned 80-110° about a
+# horizontal axis; docs/tracking-findings.md "Bottle topples whose track is lost in the fall"): the turn's pose says
+# where the body is along its axis and how its axis lies, not its spin about the axis (left to the spin closure) and
+# not a roll or slide after the landing.
+
+def base_rim(Q: np.ndarray, a: np.ndarray, base_h: float, bin_m: float = 0.005, min_pts: int = 30
+             ) -> tuple[np.ndarray, float] | None:
+    """(b_O (3,), radius (m)): the base centre of a body of revolution with model points Q (M,3) in O and axis
+    direction a (3,) (the vertical of frame 0), whose base lies at height ``base_h`` along a (the table at frame 0),
+    and its widest radius (the largest median radius over height bins of ``bin_m`` with ≥ ``min_pts`` points about
+    the axis line through ``axis_centre``); None without an axis centre."""
+    c = axis_centre(Q, a, bin_m, min_pts)
+    if c is None:
+        return None
+    d = Q - c
+    h = d @ a
+    r = np.linalg.norm(d - h[:, None] * a, axis=1)
+    rs = [float(np.median(r[(h >= lo) & (h < lo + bin_m)])) for lo in np.arange(h.min(), h.max() + bin_m, bin_m)
+          if np.count_nonzero((h >= lo) & (h < lo + bin_m)) >= min_pts]
+    if not rs:
+        return None
+    return c + (base_h - float(c @ a)) * a, max(rs)
+
+
+def rim_landing(X: np.ndarray, a: np.ndarray, b_O: np.ndarray, radius: float, table_z: float
+                ) -> np.ndarray | None:
+    """(4,4) X_WO: the pose X (4,4) of a falling body of revolution (axis a (3,) in O, base centre b_O (3,) in O,
+    base radius ``radius`` m), moved vertically until its base rim's pivot is on the table at height table_z, turned
+    about the horizontal line through the pivot until its axis is horizontal (comment above); None when the axis is vertical in X (no tipping
+    direction) or already horizontal."""
+    w = X[:3, :3] @ a
+    z = np.array([0.0, 0.0, 1.0])
+    down = (w @ z) * w - z  # the steepest descent within the base disc
+    if np.linalg.norm(down) < 1e-9:
+        return None
+    lay = _lay_flat(w)
+    if lay is None:
+        return None
+    Rd, _ = lay
+    p = X[:3, :3] @ b_O + X[:3, 3] + radius * down / np.linalg.norm(down)
+    t = X[:3, 3] + np.array([0.0, 0.0, table_z - p[2]])  # the body moved vertically until its pivot is on the table
+    p[2] = table_z
+    out = X.copy()
+    out[:3, :3] = Rd @ X[:3, :3]
+    out[:3, 3] = p + Rd @ (t - p)
+    return out
+
+
+def axial_gap(X: np.ndarray, X_ref: np.ndarray, a: np.ndarray, b_O: np.ndarray) -> tuple[float, float]:
+    """(angle (deg), offset (m)) of the pose X (4,4) from X_ref (4,4) for a body of revolution (axis a (3,) in O,
+    base centre b_O (3,) in O): the angle between their axes in W (a turn about a horizontal axis for a lying body;
+    the spin about the axis is not counted) and the base centre's offset along X_ref's axis, |·|."""
+    wa, wr = X[:3, :3] @ a, X_ref[:3, :3] @ a
+    ang = float(np.degrees(np.arccos(np.clip(wa @ wr / (np.linalg.norm(wa) * np.linalg.norm(wr)), -1.0, 1.0))))
+    d = (X[:3, :3] @ b_O + X[:3, 3]) - (X_ref[:3, :3] @ b_O + X_ref[:3, 3])
+    return ang, abs(float(d @ wr) / float(np.linalg.norm(wr)))
+
+
+def topple_time(theta: float, omega: float, radius: float, height: float, g: float = 9.81, steps: int = 400
+                ) -> float:
+    """Time (s) a body of revolution toppling about its base rim takes from the tilt ``theta`` (rad, of its axis from
+    the vertical) at the tilt rate ``omega`` (rad/s) to lie (tilt π/2), taken as a uniform solid cylinder of base
+    radius ``radius`` and height ``height`` (m): its centre of mass at d = √(r² + (H/2)²) from the pivot, at the angle
+    β = atan(2r/H) from the axis, moment of inertia about the pivot line I/m = r²/4 + H²/12 + d². Energy:
+    ω(θ)² = ω₀² + (2 g d / (I/m)) (cos(θ₀ − β) − cos(θ − β)); t = ∫ dθ / ω (midpoint rule, ``steps``). inf when the
+    body does not reach π/2 (it falls back). A fall only speeds up past the balance tilt β, so a rate measured a few
+    frames before (lower than the rate at θ) gives a longer time: a bound on when it has landed."""
+    d = float(np.hypot(radius, 0.5 * height))
+    beta = float(np.arctan2(radius, 0.5 * height))
+    k = 2.0 * g * d / (0.25 * radius**2 + height**2 / 12.0 + d**2)
+    if theta >= 0.5 * np.pi:
+        return 0.0
+    th = np.linspace(theta, 0.5 * np.pi, steps + 1)
+    mid = 0.5 * (th[1:] + th[:-1])
+    w2 = omega**2 + k * (np.cos(theta - beta) - np.cos(mid - beta))
+    if np.any(w2 <= 0):
+        return float(np.inf)
+    return float(np.sum(np.diff(th) / np.sqrt(w2)))

@@ -10,7 +10,9 @@ Per frame i (object points p_W from masked, eroded, flying-pixel-filtered depth,
    merged in O on a voxel grid), with the RANSAC inliers as point-to-point terms; from every candidate, the
    best fit (inlier fraction, then residual) wins;
 4. lost-track test: too few points, inlier fraction < min_inlier_frac or residual > max_rmse. Lost frames are
-   re-localised from the last tracked pose and against all keyframes' features;
+   re-localised from the last tracked pose and against all keyframes' features; a re-acquisition after a lost fall
+   of a body of revolution far from the fall's landing about its base rim takes that landing (``lost_land``,
+   ``_lost_landing``);
 5. keyframes: a well-tracked frame far (angle/translation) from every keyframe or showing new surface adds
    its points (those within grow_dist of the model, which rejects mask noise) to the model.
 Drift is bounded by (a) frame-to-model rather than frame-to-frame registration, (b) a bundle adjustment of
@@ -265,6 +267,9 @@ class TrackResult:
     # every topple landing joined (cfg.resettle: X_new the join; score_old / score_new the fractions of the pre-fall
     # model the frame sees through at the tracked / joined pose)
     tilt: "TiltResult | None" = None  # tilt closure of an egg-like body (cfg.spin_tilt)
+    lost_landings: list[dict] = field(default_factory=list)  # per re-acquisition after a lost fall compared with the
+    # turn about the base rim (cfg.lost_land): frame i, last tracked a, fall start g0, tilt and rate (deg, deg/frame),
+    # deg / dist the gap (deg, m), adopted
 
 
 def track(session, cfg: TrackingConfig, progress: Progress = None) -> TrackResult:
@@ -321,6 +326,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     X_CW = X_inv(session.X_WC)
     icp_kw = dict(iters=cfg.icp_iters, dist0=cfg.icp_dist0, dist_min=cfg.icp_dist_min, inlier_dist=cfg.inlier_dist)
     landings: list = []  # resettle.Landing of every topple landing checked (cfg.resettle)
+    lost_log: list[dict] = []  # re-acquisitions after a lost fall compared with its landing (cfg.lost_land)
     for i in range(1, N):
         o = observe(session, i, cfg, rng)
         obs.append(o)
@@ -366,6 +372,12 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             continue
         tracked[i] = True
         last.append(i)
+        if cfg.lost_land and a != i - 1:  # a re-acquisition after a fall the loop lost: where the fall lands
+            rel = _lost_landing(session, i, o, X, last, keyframes, carver, lost_log, cfg)
+            if rel is not None:
+                best, model = rel
+                frac[i], rmse[i] = best.inlier_frac, best.rmse
+                last[:] = [i]
         if cfg.resettle:  # after a topple's landing: the pre-fall model tipped onto its leading face
             rel = _resettle_check(session, i, o, X, tracked, keyframes, carver, landings, cfg)
             if rel is not None:
@@ -446,7 +458,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         if cfg.lie_level:  # a lying body of revolution: axis parallel to the table (service.tracking.lying)
             _level_lying(X, model, spin, session.table_height, cfg, keyframes)
     X = interpolate_untracked(X, tracked)
-    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings, tilt)
+    return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings, tilt,
+                       lost_log)
 
 
 def _consistent_in(session, j: int, Q: np.ndarray, cfg: TrackingConfig) -> Callable[[np.ndarray], bool]:
@@ -520,6 +533,82 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
         carver.add(i, session.depth(i), Xj)
     model = _model_from(keyframes, cfg.model_voxel)
     X[i] = Xj
+    return icp_result(X_OW, o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist), model
+
+
+def _axis_tilt(X_WO: np.ndarray, a_O: np.ndarray) -> float:
+    """The angle (deg) of the axis a_O (3,) (unit, in O) from the vertical of W under the pose X_WO (4,4)."""
+    return float(np.degrees(np.arccos(np.clip((X_WO[:3, :3] @ a_O)[2], -1.0, 1.0))))
+
+
+def _lost_landing(session, i: int, o: FrameObs, X: np.ndarray, last: list[int], keyframes: list[Keyframe],
+                  carver: "FreeSpace | None", log: list[dict], cfg: TrackingConfig
+                  ) -> tuple[IcpResult, ObjectModel] | None:
+    """Frame i has just been re-acquired (tracked, the frame before it not; ``last`` the tracked frames, i last).
+    When the tracked frames before the loss fall (the standing axis a = ẑ of O at frame 0 tilted by at least
+    ``lost_land_tilt_deg`` at the last one, a, and tilting faster than ``settle_fall_deg`` per frame over the last 3
+    tracked steps), the model of the keyframes before the fall's start g0 is a body of revolution about a
+    (``lying.base_rim`` finds an axis line; κ < ``spin_flat_kappa``, ``spin.arc_score``) and the time from a to i is
+    enough for it to topple from X[a]'s tilt at that rate onto the table (``lying.topple_time``: a uniform cylinder of
+    the model's height and widest radius), the pose X[a] is turned about its base rim's pivot onto the table
+    (``lying.rim_landing``). When the re-acquired pose's axis is more than ``lost_land_deg`` from that pose's, or its
+    base centre more than ``lost_land_dist`` from it along the axis (``lying.axial_gap``), X[i] takes the turned pose,
+    the keyframes from g0 on are dropped and frame i becomes a keyframe with all its points (``keyframes``, ``carver``
+    changed in place, as the landing join of ``_resettle_check``); returns (the ICP result at the new pose, the new
+    model), else None. Every comparison is appended to ``log``."""
+    from service.tracking.geometry import icp_result
+    from service.tracking.lying import axial_gap, base_rim, rim_landing, topple_time
+    from service.tracking.spin import arc_score
+
+    prev = last[:-1]
+    if len(prev) < 4:
+        return None
+    a_O = X[0][:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    a, k = prev[-1], prev[-4]
+    th = _axis_tilt(X[a], a_O)
+    rate = (th - _axis_tilt(X[k], a_O)) / (a - k)
+    if th < cfg.lost_land_tilt_deg or rate <= cfg.settle_fall_deg:
+        return None
+    p = len(prev) - 1  # the fall's start: back while the tilt grows faster than settle_fall_deg per frame
+    while p > 0 and (_axis_tilt(X[prev[p]], a_O) - _axis_tilt(X[prev[p - 1]], a_O)) / (prev[p] - prev[p - 1]) \
+            > cfg.settle_fall_deg:
+        p -= 1
+    g0 = prev[p]
+    pre = [kf for kf in keyframes if kf.index < g0]
+    if not pre:
+        return None
+    M = _model_from(pre, cfg.model_voxel)
+    rim = base_rim(M.Q, a_O, session.table_height - float(X[0][:3, 3] @ (X[0][:3, :3] @ a_O)))
+    if rim is None:
+        return None
+    b_O, radius = rim
+    if cfg.spin_flat_kappa > 0 and arc_score(M.Q, M.N, a_O, b_O) >= cfg.spin_flat_kappa:
+        return None  # flat faces: not a body of revolution about a
+    height = float(np.max((M.Q - b_O) @ a_O))  # the model's top above its base
+    dt = float(session.frame_times[a + 1] - session.frame_times[a])  # the frame period
+    if session.frame_times[i] - session.frame_times[a] < topple_time(np.radians(th), np.radians(rate) / dt, radius,
+                                                                     height):
+        return None  # the fall cannot have ended yet
+    Xc = rim_landing(X[a], a_O, b_O, radius, session.table_height)
+    if Xc is None:
+        return None
+    deg, dist = axial_gap(X[i], Xc, a_O, b_O)
+    adopt = deg > cfg.lost_land_deg or dist > cfg.lost_land_dist
+    log.append(dict(i=i, a=a, g0=g0, tilt=th, rate=rate, deg=deg, dist=dist, radius=radius, adopted=bool(adopt)))
+    if not adopt:
+        return None
+    keyframes[:] = pre
+    if carver is not None:
+        idx = [j for j, f in enumerate(carver.indices) if f < g0]
+        carver.views = [carver.views[j] for j in idx]
+        carver.indices = [carver.indices[j] for j in idx]
+    X_OW = X_inv(Xc)
+    keyframes.append(Keyframe(i, Xc.copy(), o.P_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W, o.N_W,
+                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W))
+    if carver is not None:
+        carver.add(i, session.depth(i), Xc)
+    model = _model_from(keyframes, cfg.model_voxel)
+    X[i] = Xc
     return icp_result(X_OW, o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist), model
 
 
