@@ -59,6 +59,10 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
    (``still_fit``) and whose ORB keypoints lie within a few millimetres of their partners in frame i (the object
    has not moved, seen by the frames themselves, no pose involved) takes frame i's final pose moved by the small
    rigid motion its keypoints show (the last slide or rocking of a landed box; ``tracker._rest_before``).
+8. After the flush (``tracker._resettle_axis``, ``resettle_box_axis``): a box's settled stretch moved along its tip
+   axis h so that the middle of its two ends along h (``axis_extent``: the extreme of the mask's depth points, both
+   ends seen, ``end_seen``) lies where the frames before the fall saw it (``axis_shift``, ``moved_along``): the
+   landing's sideways slide, which no surface seen before and after the landing fixes.
 What is left: the join is 0.5–2° off (a yaw the table does not fix) and up to 9 mm sideways; the base test is a lower bound of the slide
 along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
@@ -679,3 +683,92 @@ def rests_flat(Q_O: np.ndarray, N_O: np.ndarray, base_n_O: np.ndarray, down_O: n
     ``base_n_O``) or a flat face where it lies (``face_plane`` about the downward direction ``down_O`` (3,), normals
     within 30°, at least 3 % of the points). A curved body such as an egg has neither."""
     return bool(has_flat_side(Q_O, N_O, base_n_O) or face_plane(Q_O, N_O, down_O, np.cos(np.radians(30.0)), 0.03))
+
+
+def axis_extent(P_W: np.ndarray, X_WO: np.ndarray, h_O: np.ndarray, q: float = 0.005) -> tuple[float, float]:
+    """(lo, hi) in m: the extent along the unit direction ``h_O`` (3,, in O) of the points P_W (N,3, in W) carried
+    into O by the pose X_WO (4,4): their ``q`` and 1 − ``q`` quantiles (a few stray mask pixels do not count)."""
+    s = (P_W - X_WO[:3, 3]) @ (X_WO[:3, :3] @ h_O)
+    lo, hi = np.quantile(s, [q, 1.0 - q])
+    return float(lo), float(hi)
+
+
+def end_seen(P_W: np.ndarray, h_W: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray, X_WC: np.ndarray,
+             table_height: float, band: float = 0.004, walk_px: int = 24, look_px: int = 8,
+             max_cut: float = 0.9) -> bool:
+    """Whether the end of the object points P_W (N,3, in W; frame with ``depth`` (H,W) m, ``mask`` (H,W) bool,
+    intrinsics K, camera pose X_WC) along the unit direction h_W (3,) is seen, not cut off by something in front of
+    it. For up to 40 of the points within ``band`` (m) of the extreme along h_W: walk in the image from the point
+    along h_W's image direction out of the mask (at most ``walk_px`` pixels), then look at the next ``look_px``
+    pixels with a reading: the point is *cut* when one of them shows a surface nearer the camera than the point by
+    more than 1 cm and more than 1 cm above the table (an occluder, the robot), when none has a reading, or when the
+    walk leaves the image. The end is seen when fewer than ``max_cut`` of those points are cut (an occluder over part
+    of an end face leaves its extreme seen elsewhere; one over the whole end cuts every point)."""
+    H, W = depth.shape
+    proj = P_W @ h_W
+    idx = np.nonzero(proj > proj.max() - band)[0]
+    idx = idx[:: max(1, len(idx) // 40)]
+    R_CW, t_CW = X_WC[:3, :3].T, -X_WC[:3, :3].T @ X_WC[:3, 3]
+    c1 = P_W[idx] @ R_CW.T + t_CW
+    c2 = (P_W[idx] + 0.01 * h_W) @ R_CW.T + t_CW
+    uv1 = c1[:, :2] / c1[:, 2:3] * np.diag(K)[:2] + K[:2, 2]
+    uv2 = c2[:, :2] / c2[:, 2:3] * np.diag(K)[:2] + K[:2, 2]
+    d = uv2 - uv1
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    cut = 0
+    for p, dk, zc in zip(uv1, d, c1[:, 2]):
+        steps = np.arange(1, walk_px + look_px + 1)
+        uu = np.round(p[0] + steps * dk[0]).astype(int)
+        vv = np.round(p[1] + steps * dk[1]).astype(int)
+        inside = (uu >= 0) & (uu < W) & (vv >= 0) & (vv < H)
+        out = np.nonzero(~inside | ~mask[np.clip(vv, 0, H - 1), np.clip(uu, 0, W - 1)])[0]
+        if len(out) == 0 or out[0] >= walk_px or not inside[out[0]:out[0] + look_px].all():
+            cut += 1
+            continue
+        u2, v2 = uu[out[0]:out[0] + look_px], vv[out[0]:out[0] + look_px]
+        z2 = depth[v2, u2]
+        ok = z2 > 0
+        if not ok.any():
+            cut += 1
+            continue
+        P2 = np.stack([(u2[ok] - K[0, 2]) / K[0, 0] * z2[ok], (v2[ok] - K[1, 2]) / K[1, 1] * z2[ok], z2[ok]], 1)
+        height = P2 @ X_WC[2, :3] + X_WC[2, 3] - table_height
+        cut += bool(np.any((z2[ok] < zc - 0.01) & (height > 0.01)))
+    return cut < max_cut * len(idx)
+
+
+def moved_along(X_WO: np.ndarray, h_O: np.ndarray, shift: float) -> np.ndarray:
+    """Pose X_WO (4,4) with its origin moved by ``shift`` (m) along the body direction h_O (3,, unit, in O), taken
+    in W at that pose (R h_O); the rotation kept. With ``shift`` from ``axis_shift`` the frame's extent along h_O
+    (``axis_extent``) moves by −``shift``: onto the reference."""
+    X = X_WO.copy()
+    X[:3, 3] += shift * (X_WO[:3, :3] @ h_O)
+    return X
+
+
+def axis_shift(ref: np.ndarray, post: np.ndarray, len_tol: float = 0.006, spread_tol: float = 0.003,
+               min_frac: float = 0.5, min_shift: float = 0.002) -> float | None:
+    """The shift (m) along a box's axis h that puts the settled frames' ends where the frames before the fall saw
+    them: ``ref`` (K,2) and ``post`` (M,2) the (lo, hi) extents along h in O (``axis_extent``) of the frames before
+    the fall and of the settled frames with both ends seen (``end_seen``; rows of NaN where not). The box's middle
+    along h is (lo + hi) / 2 in both: the reference is the median over ``ref``; a settled frame counts when its length
+    hi − lo is within ``len_tol`` of the reference's (both ends of the same box); the shift is the median of the
+    counted frames' middles minus the reference's. None (no shift) when fewer than 3 reference frames, fewer than
+    ``min_frac`` of the settled frames (and fewer than 5) count, the counted frames' shifts spread (interquartile
+    range) more than ``spread_tol``, or the shift is under ``min_shift`` (the measurement's own bias, about 1 mm)."""
+    ref = np.asarray(ref, float).reshape(-1, 2)
+    post = np.asarray(post, float).reshape(-1, 2)
+    ref = ref[np.isfinite(ref).all(1)]
+    if len(ref) < 3 or len(post) == 0:
+        return None
+    mid0, L0 = float(np.median(ref.sum(1) / 2)), float(np.median(ref[:, 1] - ref[:, 0]))
+    ok = np.isfinite(post).all(1)
+    ok[ok] = np.abs(post[ok, 1] - post[ok, 0] - L0) <= len_tol
+    if ok.sum() < max(5, min_frac * len(post)):
+        return None
+    c = post[ok].sum(1) / 2 - mid0
+    q1, q3 = np.quantile(c, [0.25, 0.75])
+    shift = float(np.median(c))
+    if q3 - q1 > spread_tol or abs(shift) < min_shift:
+        return None
+    return shift

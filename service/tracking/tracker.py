@@ -449,6 +449,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         if cfg.resettle_flush_deg > 0 and landings:  # the settled stretch flush with the table, re-registered (after the
             # gauge: the base the object stood on is -z in the final O)
             model = _resettle_flush(session, obs, X, tracked, frac, rmse, keyframes, carver, landings, cfg) or model
+        if cfg.resettle_box_axis and landings:  # the settled box's position along the tip axis from its ends
+            model = _resettle_axis(session, X, tracked, keyframes, carver, landings, cfg) or model
     spin = tilt = None
     if cfg.spin_closure:
         _report(progress, 0.8, "spin closure")
@@ -749,6 +751,84 @@ def _resettle_flush(session, obs: list[FrameObs], X: np.ndarray, tracked: np.nda
         X[j], frac[j], rmse[j] = r.X_WO, r.inlier_frac, r.rmse
         tracked[j] = tracked[i]
     return model
+
+
+def _end_points(session, j: int, cfg: TrackingConfig, step: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(P_W (N,3) in W, depth (H,W) m, mask (H,W) bool) of frame j: the object's depth points of every ``step``-th
+    pixel of the mask (not eroded, not subsampled at random: the mask's outline is what is measured), without flying
+    pixels, the table within ``table_clearance`` and the robot's end-effector (as ``observe``)."""
+    depth, mask = session.depth(j), session.mask(j).astype(bool)
+    v, u = np.nonzero(mask & (depth > 0))
+    keep = (u % step == 0) & (v % step == 0)
+    u, v = u[keep], v[keep]
+    good = depth_continuous(depth, u, v, cfg.edge_jump)
+    P_W = backproject(depth, session.K, u[good], v[good]) @ session.X_WC[:3, :3].T + session.X_WC[:3, 3]
+    P_W = P_W[(P_W[:, 2] > session.table_height + cfg.table_clearance) & ~near_effector(session, j, P_W, cfg)]
+    return P_W, depth, mask
+
+
+def _resettle_axis(session, X: np.ndarray, tracked: np.ndarray, keyframes: list[Keyframe],
+                   carver: "FreeSpace | None", landings: list, cfg: TrackingConfig, stride: int = 2
+                   ) -> ObjectModel | None:
+    """The settled stretch of every landing checked (as ``_resettle_flush``: settled frame i up to the next fall)
+    moved along the box's tip axis so that its ends lie where the frames before the fall saw them. A topple turns the
+    box about an axis along one of its sides, h; nothing seen both before and after the landing fixes its position
+    along h, but both views see the box's two ends along h (the extreme of the mask's depth points along h), and
+    their middle is one point of the rigid box. The axis: the turn from frame 0 to X[i] about its axis, made
+    perpendicular to the base normal and taken to the box's side direction nearest it (``resettle.box_face`` of the
+    pre-fall model; no box, no shift). Every ``stride``-th tracked frame before the fall (from the previous settled
+    frame) and of the stretch: the extent along h in O (``axis_extent``), kept when both ends are seen
+    (``end_seen``); ``axis_shift`` gives one shift for the stretch or refuses it. Every frame of the stretch then moves
+    by that shift along h in W (X_WO's translation only), its keyframes with it, and the model is rebuilt. Updates
+    X, keyframes and carver in place; returns the rebuilt model, or None when nothing moved."""
+    from service.tracking.resettle import axis_extent, axis_shift, box_face, end_seen, moved_along
+
+    base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
+    moved: list[int] = []
+    start = 0
+    for ld in sorted(landings, key=lambda l: l.i):
+        i, g0 = ld.i, ld.g0
+        end = min([l.g0 for l in landings if l.g0 > i], default=len(X))
+        pre = [kf for kf in keyframes if kf.index < g0]
+        ref_frames = [j for j in range(start, g0, stride) if tracked[j]]
+        start = i
+        if not pre or not tracked[i] or not ref_frames:
+            continue
+        a = so3_log(X[0][:3, :3].T @ X[i][:3, :3])
+        a = a - (a @ base_n) * base_n
+        if np.linalg.norm(a) < 1e-6:
+            continue
+        M = _model_from(pre, cfg.model_voxel)
+        side = box_face(M.Q, M.N, a / np.linalg.norm(a), base_n)
+        if side is None:
+            continue  # not a box
+        h = side[0]
+
+        def extents(frames: list[int]) -> np.ndarray:
+            out = np.full((len(frames), 2), np.nan)
+            for k, j in enumerate(frames):
+                P_W, depth, mask = _end_points(session, j, cfg)
+                if len(P_W) < cfg.min_points:
+                    continue
+                h_W = X[j][:3, :3] @ h
+                if all(end_seen(P_W, sgn * h_W, depth, mask, session.K, session.X_WC, session.table_height)
+                       for sgn in (1.0, -1.0)):
+                    out[k] = axis_extent(P_W, X[j], h)
+            return out
+
+        stretch = [j for j in range(i, end) if tracked[j]]
+        shift = axis_shift(extents(ref_frames), extents(stretch[::stride]))
+        if shift is None:
+            continue
+        for j in range(i, end):
+            X[j] = moved_along(X[j], h, shift)
+            moved.append(j)
+    if not moved:
+        return None
+    for kf in keyframes:
+        if kf.index in set(moved):
+            _place_keyframe(kf, X[kf.index].copy(), carver)
+    return _model_from(keyframes, cfg.model_voxel)
 
 
 def _rest_before(obs: list[FrameObs], i: int, g0: int, cfg: TrackingConfig) -> list[tuple[int, np.ndarray]]:

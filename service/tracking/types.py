@@ -274,6 +274,14 @@ class TrackingConfig:
     # development 1617 1.13 deg of it over the settled stretch). Off: design sessions rotation median 1617 1.64 -> 1.22
     # deg, 1564 1.03 -> 0.83 deg; fresh development sessions -0.20..+0.18 deg median, worst translation up on 6 of 7
     resettle_box_flush: bool = False
+    # the settled stretch of a box after a topple moved along the tip axis h so that the box's two ends along h (the
+    # extreme of the mask's depth points along h, both ends seen: nothing nearer the camera beyond them) have their
+    # middle where the frames before the fall saw it (tracker._resettle_axis, resettle.axis_extent / end_seen /
+    # axis_shift: one shift for the stretch, refused when the lengths disagree, the frames' shifts spread or it is
+    # under 2 mm). The landing's sideways slide (+-6 mm) is seen by nothing else. On: development carton topples 1724
+    # 9.40 -> 2.45 mm, 1732 9.58 -> 3.18 mm, 1730 14.47 -> 8.45 mm translation median; 39 of 44 development sessions
+    # and the evaluation identical (docs/tracking-findings.md "The box's position along the tip axis")
+    resettle_box_axis: bool = True
     # support closure (visible.support_feet): the SDF's initial hull also takes the foot of every observed surface
     # point on the table plane at frame 0 (the object rests on the table, so the never-seen space below what was
     # seen is object unless a keyframe saw it empty, which the carving then removes); needs below_table_outside.

@@ -22,6 +22,7 @@ def test_defaults_and_fast_are_valid():
     ({"resettle_box_face": 1}, ["resettle_box_face"]),
     ({"resettle_box_drop": 1}, ["resettle_box_drop"]),
     ({"resettle_box_flush": 1}, ["resettle_box_flush"]),
+    ({"resettle_box_axis": "yes"}, ["resettle_box_axis"]),
     ({"resettle_box_rest": -0.001}, ["resettle_box_rest"]),
     ({"resettle_box_rest": float("nan")}, ["resettle_box_rest"]),
 ])
