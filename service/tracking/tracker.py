@@ -484,7 +484,6 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     ``resettle_min_deg`` / ``resettle_min_dist``, the keyframes from the fall's start on are dropped (``keyframes``,
     ``carver`` changed in place), X[i] takes it and frame i becomes a keyframe with all its points; returns (the ICP
     result at the new pose, the new model), else None. Every fall checked is appended to ``landings``."""
-    from service.tracking.geometry import icp_result
     from service.tracking.resettle import Landing, box_landing_pose, face_offsets, find_fall, landing_pose, reach_along
 
     ev = find_fall(X, tracked, i, cfg.settle_fast_deg, cfg.settle_fall_deg, cfg.resettle_tip_deg,
@@ -523,18 +522,30 @@ def _resettle_check(session, i: int, o: FrameObs, X: np.ndarray, tracked: np.nda
     landings.append(Landing(g0, i, X[i].copy(), Xj.copy(), s_old, s_new, bool(adopt)))
     if not adopt:
         return None
+    return _restart_at(session, i, o, X, Xj, pre, g0, keyframes, carver, cfg)
+
+
+def _restart_at(session, i: int, o: FrameObs, X: np.ndarray, X_new: np.ndarray, pre: list[Keyframe], g0: int,
+                keyframes: list[Keyframe], carver: "FreeSpace | None", cfg: TrackingConfig
+                ) -> tuple[IcpResult, ObjectModel]:
+    """Frame i takes the pose X_new (4,4, X_WO) from a landing's physics: the keyframes become ``pre`` (those before
+    the fall's start g0), the free-space views from g0 on are dropped, frame i becomes a keyframe with all its points
+    and the model is rebuilt (``X``, ``keyframes`` and ``carver`` changed in place). Returns the ICP result of frame i
+    at X_new against the new model, and that model."""
+    from service.tracking.geometry import icp_result
+
     keyframes[:] = pre
     if carver is not None:
         idx = [k for k, j in enumerate(carver.indices) if j < g0]
         carver.views = [carver.views[k] for k in idx]
         carver.indices = [carver.indices[k] for k in idx]
-    X_OW = X_inv(Xj)
-    keyframes.append(Keyframe(i, Xj.copy(), o.P_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W, o.N_W,
+    X_OW = X_inv(X_new)
+    keyframes.append(Keyframe(i, X_new.copy(), o.P_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W, o.N_W,
                               o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W))
     if carver is not None:
-        carver.add(i, session.depth(i), Xj)
+        carver.add(i, session.depth(i), X_new)
     model = _model_from(keyframes, cfg.model_voxel)
-    X[i] = Xj
+    X[i] = X_new
     return icp_result(X_OW, o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist), model
 
 
@@ -558,7 +569,6 @@ def _lost_landing(session, i: int, o: FrameObs, X: np.ndarray, last: list[int], 
     the keyframes from g0 on are dropped and frame i becomes a keyframe with all its points (``keyframes``, ``carver``
     changed in place, as the landing join of ``_resettle_check``); returns (the ICP result at the new pose, the new
     model), else None. Every comparison is appended to ``log``."""
-    from service.tracking.geometry import icp_result
     from service.tracking.lying import axial_gap, base_rim, rim_landing, topple_time
     from service.tracking.spin import arc_score
 
@@ -599,19 +609,7 @@ def _lost_landing(session, i: int, o: FrameObs, X: np.ndarray, last: list[int], 
     log.append(dict(i=i, a=a, g0=g0, tilt=th, rate=rate, deg=deg, dist=dist, radius=radius, adopted=bool(adopt)))
     if not adopt:
         return None
-    keyframes[:] = pre
-    if carver is not None:
-        idx = [j for j, f in enumerate(carver.indices) if f < g0]
-        carver.views = [carver.views[j] for j in idx]
-        carver.indices = [carver.indices[j] for j in idx]
-    X_OW = X_inv(Xc)
-    keyframes.append(Keyframe(i, Xc.copy(), o.P_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.P_W, o.N_W,
-                              o.kp_W @ X_OW[:3, :3].T + X_OW[:3, 3], o.desc, o.kp_W))
-    if carver is not None:
-        carver.add(i, session.depth(i), Xc)
-    model = _model_from(keyframes, cfg.model_voxel)
-    X[i] = Xc
-    return icp_result(X_OW, o.P_W, model.tree, model.Q, model.N, cfg.inlier_dist), model
+    return _restart_at(session, i, o, X, Xc, pre, g0, keyframes, carver, cfg)
 
 
 def _fall_base(session, X_a: np.ndarray, X_b: np.ndarray, X_0: np.ndarray, pre: list[Keyframe],
