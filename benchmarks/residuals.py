@@ -427,7 +427,7 @@ def _print_release(out) -> None:
             continue
         vals = ", ".join(f"{v:.4g}" for v in h.get("params", {}).values())
         verdict = "passes" if h["passes"] else h["reason"].split(";")[0]
-        print(f"    round {h['round']} {h['effect']:16s} ({vals}) {verdict}; {part.removeprefix('rejected: does not improve the slide alone (')}",
+        print(f"    round {h['round']} {h['effect']:16s} ({vals}) {verdict}" + ("" if part.startswith("rejected") else f"; {part}"),
               flush=True)
 
 

@@ -384,7 +384,7 @@ def release_frame(seg: Segment) -> int | None:
     v_s = np.diff(p_s, axis=0) / dt
     sp = np.linalg.norm(v_o, axis=1)
     d = v_o / np.maximum(sp, 1e-9)[:, None]
-    push = np.r_[False, np.sum(v_s * d, axis=1) >= sp] & on
+    push = np.r_[False, np.sum(v_s * d, axis=1) >= sp - 1e-9] & on
     idx = np.flatnonzero(push)
     return int(idx[-1]) if len(idx) else int(np.flatnonzero(on)[0])
 
@@ -398,7 +398,9 @@ def release_segment(seg: Segment, gap: int, cfg: ResidualConfig) -> Segment | No
     release only: up to ``init_fit_frames`` tracked frames of the slide from the start on (modes ``sliding`` or
     ``robot_contact``; one-sided: a window across the stop would bend the quadratic), at least 4. From there the
     sphere no longer pushes, so what the struck size, the strike's timing and the sphere contact did is in the start
-    state, the same for every model compared, and what moves the rollout is what acts on the slide (friction,
+    state, the same for every model compared, and the block is rolled out without the sphere (``robot`` None: a hull
+    left too large would otherwise meet the braking sphere a few millimetres behind it and be pushed again in the
+    replay, which the observed slide did not have); what moves the rollout is what acts on the slide (friction,
     dampings, tilt). Frames X_WO in W, t in s.
     """
     if not seg.launch:
@@ -420,7 +422,7 @@ def release_segment(seg: Segment, gap: int, cfg: ResidualConfig) -> Segment | No
     h = dt / max(1, math.ceil(dt / cfg.sim_substep_s - 1e-9))
     X0, v0, w0 = start_state(seg.t[r:w1], seg.X_obs[r:w1], 0, h)
     return Segment(seg.traj, seg.start + r, seg.stop, seg.t[r:], seg.X_obs[r:], seg.tracked[r:], seg.mode[r:], X0, v0,
-                   w0, seg.robot, False, False)
+                   w0, None, False, False)
 
 
 def split_segments(segs: list[Segment], n_traj: int, cfg: ResidualConfig) -> tuple[list[Segment], list[Segment], np.ndarray]:
