@@ -534,6 +534,7 @@ def strike(args) -> None:
                                          else {"nuisance_contact_gap_weight": args.contact_gap_weight}),
                                       **({} if args.nuisance_restart is None else {"nuisance_restart": args.nuisance_restart}),
                                       **({} if args.nuisance_segments is None else {"max_nuisance_segments": args.nuisance_segments}),
+                                      **({} if args.release_fit is None else {"release_fit": args.release_fit == "on"}),
                                       **({} if args.release_blocks is None
                                          else {"release_blocks": None if args.release_blocks == "off" else args.release_blocks}))
             model = perturbed_model(ls, **LEARNED_ERRORS) if args.learned_model else perturbed_model(ls)
@@ -704,6 +705,8 @@ def main() -> None:
                     help="ResidualConfig.release_blocks: rule 10, a slide effect must also improve the held-out release "
                          "blocks, started N frames after the sphere stopped pushing (docs/residuals.md §4; 'off' or "
                          "absent: the config's default, off)")
+    st.add_argument("--release-fit", choices=("on", "off"), default=None,
+                    help="ResidualConfig.release_fit: rule 10 at the value fitted on the training release blocks")
     st.add_argument("--nuisance-segments", type=int, default=None, metavar="N",
                     help="ResidualConfig.max_nuisance_segments: training blocks of the nuisance fit and the joint refit "
                          "(absent: ResidualConfig.fast()'s 12)")

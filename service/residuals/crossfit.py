@@ -97,7 +97,7 @@ class _Fold:
     cur_frames: list = field(default_factory=list)
     nuisance: dict = field(default_factory=dict)
     gap_segs: list = field(default_factory=list)  # the training blocks with the input model's modes (contact-gap term)
-    release: list | None = None  # its held-out release blocks (``release_blocks``), cut when first needed
+    release: dict | None = None  # its held-out and training release blocks (``release_blocks``), cut when first needed
 
 
 def _flat(names_theta: dict) -> dict[str, float]:
@@ -232,14 +232,32 @@ def lookalike_refutation(round_res: list[tuple], folds: list, cfg: ResidualConfi
     return _judge_lookalikes(round_res, final, history, rnd, judge)
 
 
-def release_blocks(fd, cfg: ResidualConfig) -> list:
+def release_blocks(fd, cfg: ResidualConfig, train: bool = False) -> list:
     """The release blocks (``loop.release_segment``, ``cfg.release_blocks`` frames after the release) of fold ``fd``'s
-    held-out launch blocks, with the fold's modes; cut once per fold and kept on it."""
+    held-out launch blocks (``train``: of its training launch blocks), with the fold's modes; cut once per fold and
+    kept on it."""
     from service.residuals.loop import release_segment
 
     if fd.release is None:
-        fd.release = [r for r in (release_segment(sg, cfg.release_blocks, cfg) for sg in fd.held) if r is not None]
-    return fd.release
+        fd.release = {}
+    key = "train" if train else "held"
+    if key not in fd.release:
+        fd.release[key] = [r for r in (release_segment(sg, cfg.release_blocks, cfg)
+                                       for sg in (fd.train if train else fd.held)) if r is not None]
+    return fd.release[key]
+
+
+def release_value(eff, fd, cfg: ResidualConfig, ev, guess) -> tuple:
+    """``ResidualConfig.release_fit``: the effect's value fitted on fold ``fd``'s training release blocks alone (from
+    the fold's current model: its corrections and accepted effects; ``loop._fit`` on the effect's frames of those
+    blocks), or None with fewer than 2 such blocks."""
+    from service.residuals.loop import _acts_on, _fit
+
+    tr = [r for r in release_blocks(fd, cfg, train=True) if _acts_on(r, eff)]
+    if len(tr) < 2:
+        return None
+    theta, _ = _fit(eff, guess, fd.model, fd.base_effects, fd.chosen, ev, tr, cfg)
+    return theta
 
 
 def release_rule(ok: bool, why: str, eff, per: list, folds: list, cur: list, ev, cfg: ResidualConfig) -> tuple[bool, str]:
@@ -248,18 +266,26 @@ def release_rule(ok: bool, why: str, eff, per: list, folds: list, cur: list, ev,
     size, the strike's timing and the sphere contact are in the start state), each block's mean of the effect's
     error component over all its tracked frames (the slide and where it stopped), the fold's current model (before)
     against the candidate's fold model (after, with its own corrections when it was refitted with them). A candidate
-    passing rules 1-8 is rejected unless the mean error falls and more blocks get better than worse; with fewer than
+    passing rules 1-8 is rejected unless the mean error falls and more blocks get better than worse (by more than
+    ``tie_tol_rel`` of the median error before, as in the sign test: a value at "no effect" changes nothing); with fewer than
     ``release_min_blocks`` release blocks the rule does not judge. The figures are appended to the reason either way.
     ``per`` holds each fold's ``after_model`` (model, simulator effects), ``cur`` each fold's current (model, effects)."""
     from service.residuals.loop import reduce_blocks
 
-    b, a = [], []
+    b, a, vals = [], [], []
     for f, fd in enumerate(folds):
         rel = release_blocks(fd, cfg)
         if not rel:
             continue
         cm, cs = cur[f]
         m_after, e_after = per[f]["after_model"]
+        if cfg.release_fit:
+            theta = release_value(eff, fd, cfg, ev, per[f]["theta"])
+            if theta is None:
+                continue
+            vals.append(theta)
+            m_after, s_after = apply_effects(fd.model, {**fd.chosen, eff.name: theta})
+            e_after = {**fd.base_effects, **s_after}
         b.append(reduce_blocks(ev.frame_split(cm, {**fd.base_effects, **cs}, rel), component=eff.component))
         a.append(reduce_blocks(ev.frame_split(m_after, e_after, rel), component=eff.component))
     b = np.concatenate(b) if b else np.zeros(0)
@@ -269,9 +295,13 @@ def release_rule(ok: bool, why: str, eff, per: list, folds: list, cur: list, ev,
     if len(b) < cfg.release_min_blocks:
         return ok, f"{why}; release blocks: {len(b)}, too few to judge"
     fall = float((b.mean() - a.mean()) / b.mean()) if b.mean() > 0 else 0.0
-    n_b, n_w = int(np.sum(a < b)), int(np.sum(a > b))
+    tol = cfg.tie_tol_rel * float(np.median(b))  # ties as in the sign test (rule 3)
+    n_b, n_w = int(np.sum(b - a > tol)), int(np.sum(a - b > tol))
     txt = (f"release blocks ({eff.component}): {b.mean() * 1e3:.2f} -> {a.mean() * 1e3:.2f} mm ({fall:+.1%}), "
            f"better/worse on {n_b}/{n_w} of {len(b)}")
+    if vals:
+        txt += ", at the values fitted on the folds' training release blocks " + " / ".join(
+            "(" + ", ".join(f"{v:.4g}" for v in th) + ")" for th in vals)
     if ok and not (fall > 0 and n_b > n_w):
         return False, f"rejected: does not improve the slide alone ({txt}); " + why.removeprefix("passes; ")
     return ok, f"{why}; {txt}"

@@ -252,6 +252,9 @@ class ResidualConfig:
     # leaves every output as before
     release_blocks: int | None = None
     release_min_blocks: int = 3
+    # with release blocks on: the effect's value for rule 10 fitted on each fold's training release blocks alone (the
+    # launch blocks' θ_f carries what the effect took up of the struck size); the accepted value is not changed
+    release_fit: bool = False
 
     def __post_init__(self) -> None:
         self._check_numbers()
@@ -294,6 +297,8 @@ class ResidualConfig:
         v = self.release_min_blocks
         if not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
             raise ValueError(f"ResidualConfig.release_min_blocks must be an integer >= 1, not {v!r}")
+        if not isinstance(self.release_fit, bool):
+            raise ValueError(f"ResidualConfig.release_fit must be a bool, not {self.release_fit!r}")
         v = self.restitution_threshold_mps
         if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v < np.inf):
             raise ValueError(f"ResidualConfig.restitution_threshold_mps must be a number >= 0 m/s, not {v!r}")
