@@ -248,8 +248,10 @@ class ResidualConfig:
     # the model-free fit of ``loop.start_state`` on the sliding frames from there on only) to the block's end, where
     # the struck size can no longer act. A slide effect (``effects.SLIDE_EFFECTS``: linear and angular damping, table
     # friction, tilt) that passes rules 1-8 is refused when, over the held-out release blocks of every fold where it
-    # acts (>= ``release_min_blocks`` of them), the mean of its error component on its frames does not fall. Off
-    # leaves every output as before
+    # acts (>= ``release_min_blocks`` of them), its error component does not fall on average and on more blocks than
+    # it rises (ties as rule 3's). Off leaves every output as before. Off by default: on the judge seeds 831-840 it
+    # removed one false acceptance (a damping on plain learned 835) and lost one right damping (838, fitted 97 % high;
+    # docs/residuals-findings.md, "Release blocks")
     release_blocks: int | None = None
     release_min_blocks: int = 3
     # with release blocks on: the effect's value for rule 10 fitted on each fold's training release blocks alone (the
