@@ -418,6 +418,19 @@ def _print_lookalikes(out) -> None:
                 break
 
 
+def _print_release(out) -> None:
+    """Rule 10 (docs/residuals.md §4): every round's release-block figures of the slide effects, with the round's
+    verdict and fold-mean value (printed only when the rule ran)."""
+    for h in out.by_mode.get("rounds", []):
+        part = next((p.strip() for p in h.get("reason", "").split("; ") if "release blocks" in p), None)
+        if part is None:
+            continue
+        vals = ", ".join(f"{v:.4g}" for v in h.get("params", {}).values())
+        verdict = "passes" if h["passes"] else h["reason"].split(";")[0]
+        print(f"    round {h['round']} {h['effect']:16s} ({vals}) {verdict}" + ("" if part.startswith("rejected") else f"; {part}"),
+              flush=True)
+
+
 def _peak_launch(X: np.ndarray, t: np.ndarray, k0: int) -> float:
     """Peak horizontal frame speed (m/s) of poses X (T,4,4) W at times t (T,) s over the frames around a block's
     first frame ``k0`` where the effect acts (from the frame before it to 4 frames after): the launch of a strike."""
@@ -520,7 +533,10 @@ def strike(args) -> None:
                                       **({} if args.contact_gap_weight is None
                                          else {"nuisance_contact_gap_weight": args.contact_gap_weight}),
                                       **({} if args.nuisance_restart is None else {"nuisance_restart": args.nuisance_restart}),
-                                      **({} if args.nuisance_segments is None else {"max_nuisance_segments": args.nuisance_segments}))
+                                      **({} if args.nuisance_segments is None else {"max_nuisance_segments": args.nuisance_segments}),
+                                      **({} if args.release_fit is None else {"release_fit": args.release_fit == "on"}),
+                                      **({} if args.release_blocks is None
+                                         else {"release_blocks": None if args.release_blocks == "off" else args.release_blocks}))
             model = perturbed_model(ls, **LEARNED_ERRORS) if args.learned_model else perturbed_model(ls)
             if args.true_split:
                 if name:
@@ -598,6 +614,7 @@ def strike(args) -> None:
             if args.folds >= 2:
                 _print_fold_agreement(out)
             _print_lookalikes(out)
+            _print_release(out)
             if args.learned_model:
                 _print_corrections(out)
     if args.true_split:
@@ -684,6 +701,12 @@ def main() -> None:
     st.add_argument("--nuisance-restart", choices=("off", "joint", "both"), default=None,
                     help="ResidualConfig.nuisance_restart: the corrections refitted for each hypothesis (docs/residuals.md "
                          "§3b; absent: the config's default)")
+    st.add_argument("--release-blocks", type=_int_or_off, default=None, metavar="N",
+                    help="ResidualConfig.release_blocks: rule 10, a slide effect must also improve the held-out release "
+                         "blocks, started N frames after the sphere stopped pushing (docs/residuals.md §4; 'off' or "
+                         "absent: the config's default, off)")
+    st.add_argument("--release-fit", choices=("on", "off"), default=None,
+                    help="ResidualConfig.release_fit: rule 10 at the value fitted on the training release blocks")
     st.add_argument("--nuisance-segments", type=int, default=None, metavar="N",
                     help="ResidualConfig.max_nuisance_segments: training blocks of the nuisance fit and the joint refit "
                          "(absent: ResidualConfig.fast()'s 12)")
@@ -757,6 +780,11 @@ def main() -> None:
             ResidualConfig(restitution_follow_frames=args.restitution_follow_frames)
         except ValueError as e:
             ap.error(f"--restitution-follow-frames: {e}")
+    if getattr(args, "release_blocks", None) not in (None, "off"):
+        try:
+            ResidualConfig(release_blocks=args.release_blocks)
+        except ValueError as e:
+            ap.error(f"--release-blocks: {e}")
     if getattr(args, "save_outputs", None):  # made (or refused) now, not after the first cell's minutes of work
         try:
             Path(args.save_outputs).mkdir(parents=True, exist_ok=True)

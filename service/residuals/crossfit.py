@@ -41,7 +41,9 @@ import numpy as np
 
 from service.errors import InvalidInput
 from service.model import ObjectModel
-from service.residuals.effects import REGISTRY, apply_effects, at_bound, fold_into_model, is_negligible, null_params
+from service.residuals.effects import (
+    REGISTRY, SLIDE_EFFECTS, apply_effects, at_bound, fold_into_model, is_negligible, null_params,
+)
 from service.residuals.modes import classify
 from service.residuals.types import EffectCandidate, ResidualConfig, ResidualInputs, ResidualOutputs
 
@@ -95,6 +97,7 @@ class _Fold:
     cur_frames: list = field(default_factory=list)
     nuisance: dict = field(default_factory=dict)
     gap_segs: list = field(default_factory=list)  # the training blocks with the input model's modes (contact-gap term)
+    release: dict | None = None  # its held-out and training release blocks (``release_blocks``), cut when first needed
 
 
 def _flat(names_theta: dict) -> dict[str, float]:
@@ -227,6 +230,81 @@ def lookalike_refutation(round_res: list[tuple], folds: list, cfg: ResidualConfi
         return True, f"{cand.reason}; not refuted by its look-alike {other} ({txt})"
 
     return _judge_lookalikes(round_res, final, history, rnd, judge)
+
+
+def release_blocks(fd, cfg: ResidualConfig, train: bool = False) -> list:
+    """The release blocks (``loop.release_segment``, ``cfg.release_blocks`` frames after the release) of fold ``fd``'s
+    held-out launch blocks (``train``: of its training launch blocks), with the fold's modes; cut once per fold and
+    kept on it."""
+    from service.residuals.loop import release_segment
+
+    if fd.release is None:
+        fd.release = {}
+    key = "train" if train else "held"
+    if key not in fd.release:
+        fd.release[key] = [r for r in (release_segment(sg, cfg.release_blocks, cfg)
+                                       for sg in (fd.train if train else fd.held)) if r is not None]
+    return fd.release[key]
+
+
+def release_value(eff, fd, cfg: ResidualConfig, ev, guess) -> tuple:
+    """``ResidualConfig.release_fit``: the effect's value fitted on fold ``fd``'s training release blocks alone (from
+    the fold's current model: its corrections and accepted effects; ``loop._fit`` on the effect's frames of those
+    blocks), or None with fewer than 2 such blocks."""
+    from service.residuals.loop import _acts_on, _fit
+
+    tr = [r for r in release_blocks(fd, cfg, train=True) if _acts_on(r, eff)]
+    if len(tr) < 2:
+        return None
+    theta, _ = _fit(eff, guess, fd.model, fd.base_effects, fd.chosen, ev, tr, cfg)
+    return theta
+
+
+def release_rule(ok: bool, why: str, eff, per: list, folds: list, cur: list, ev, cfg: ResidualConfig) -> tuple[bool, str]:
+    """Rule 10 (§4, ``ResidualConfig.release_blocks``): a slide effect must also improve the slide alone. On the
+    held-out release blocks of every fold (``release_blocks``: started after the sphere stopped pushing, so the struck
+    size, the strike's timing and the sphere contact are in the start state), each block's mean of the effect's
+    error component over all its tracked frames (the slide and where it stopped), the fold's current model (before)
+    against the candidate's fold model (after, with its own corrections when it was refitted with them). A candidate
+    passing rules 1-8 is rejected unless the mean error falls and more blocks get better than worse (by more than
+    ``tie_tol_rel`` of the median error before, as in the sign test: a value at "no effect" changes nothing); with fewer than
+    ``release_min_blocks`` release blocks the rule does not judge. The figures are appended to the reason either way.
+    ``per`` holds each fold's ``after_model`` (model, simulator effects), ``cur`` each fold's current (model, effects)."""
+    from service.residuals.loop import reduce_blocks
+
+    b, a, vals = [], [], []
+    for f, fd in enumerate(folds):
+        rel = release_blocks(fd, cfg)
+        if not rel:
+            continue
+        cm, cs = cur[f]
+        m_after, e_after = per[f]["after_model"]
+        if cfg.release_fit:
+            theta = release_value(eff, fd, cfg, ev, per[f]["theta"])
+            if theta is None:
+                continue
+            vals.append(theta)
+            m_after, s_after = apply_effects(fd.model, {**fd.chosen, eff.name: theta})
+            e_after = {**fd.base_effects, **s_after}
+        b.append(reduce_blocks(ev.frame_split(cm, {**fd.base_effects, **cs}, rel), component=eff.component))
+        a.append(reduce_blocks(ev.frame_split(m_after, e_after, rel), component=eff.component))
+    b = np.concatenate(b) if b else np.zeros(0)
+    a = np.concatenate(a) if a else np.zeros(0)
+    keep = np.isfinite(b) & np.isfinite(a)
+    b, a = b[keep], a[keep]
+    if len(b) < cfg.release_min_blocks:
+        return ok, f"{why}; release blocks: {len(b)}, too few to judge"
+    fall = float((b.mean() - a.mean()) / b.mean()) if b.mean() > 0 else 0.0
+    tol = cfg.tie_tol_rel * float(np.median(b))  # ties as in the sign test (rule 3)
+    n_b, n_w = int(np.sum(b - a > tol)), int(np.sum(a - b > tol))
+    txt = (f"release blocks ({eff.component}): {b.mean() * 1e3:.2f} -> {a.mean() * 1e3:.2f} mm ({fall:+.1%}), "
+           f"better/worse on {n_b}/{n_w} of {len(b)}")
+    if vals:
+        txt += ", at the values fitted on the folds' training release blocks " + " / ".join(
+            "(" + ", ".join(f"{v:.4g}" for v in th) + ")" for th in vals)
+    if ok and not (fall > 0 and n_b > n_w):
+        return False, f"rejected: does not improve the slide alone ({txt}); " + why.removeprefix("passes; ")
+    return ok, f"{why}; {txt}"
 
 
 def nuisance_blocks(train: list, f: int, cfg: ResidualConfig) -> list:
@@ -364,7 +442,8 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                 m_after, s_after = apply_effects(fd.model, {**fd.chosen, name: theta})
                 after_frames = ev.frame_split(m_after, {**fd.base_effects, **s_after}, fd.held)
                 per.append({"theta": theta, "e_train": e_train, "train_before": train_before, "tr_masks": tr_masks,
-                            "ho_masks": ho_masks, "after_frames": after_frames, "nuis": fd.nuis_fix, "refit": False})
+                            "ho_masks": ho_masks, "after_frames": after_frames, "nuis": fd.nuis_fix, "refit": False,
+                            "after_model": (m_after, {**fd.base_effects, **s_after})})
 
             def gather():
                 rb = np.concatenate([reduce_blocks([fd.cur_frames[i] for i in ho_idx[f]], per[f]["ho_masks"])
@@ -394,6 +473,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                                                      dict(input_effects), ev, fd.tr_n, cfg, fd.gap_segs)
                     m_after, s_after = apply_effects(input_model, {**cand_nuis, **fd.chosen, name: theta})
                     per[f]["after_frames"] = ev.frame_split(m_after, {**input_effects, **s_after}, fd.held)
+                    per[f]["after_model"] = (m_after, {**input_effects, **s_after})
                     per[f]["e_train"] = float(ev.errors(m_after, {**input_effects, **s_after}, tr_e[f], per[f]["tr_masks"]).mean())
                     per[f].update(theta=theta, nuis=cand_nuis, refit=True)
                 rel_before, rel_after, u_all, all_before, all_after = gather()
@@ -409,6 +489,8 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                                   [fd.held[i] for f, fd in enumerate(folds) for i in ho_idx[f]], rel_before, rel_after,
                                   (f" in fold(s) {bound_f}" if kfold else "") if bound_f else None)
             ok, why = agreement_rule(ok, why, eff, thetas, folds[0].model)  # K >= 2 only
+            if cfg.release_blocks is not None and name in SLIDE_EFFECTS:  # rule 10
+                ok, why = release_rule(ok, why, eff, per, folds, cur, ev, cfg)
             n_tr = sum(len(t) for t in tr_e)
             act_before, act_after = gather_acting()
             cand = judged_candidate(name, eff, theta_rep, guess, sig, why, rel_before, rel_after, all_before, all_after,

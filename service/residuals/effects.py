@@ -368,6 +368,10 @@ register(Effect(
 # when the model was learned from the same session (never accepted as an effect then).
 NUISANCE_LEARNED: tuple[str, ...] = ("geometry_scale", "inertia_scale", "com_offset", "table_offset")
 NUISANCE_ONLY: tuple[str, ...] = ("geometry_scale", "inertia_scale")  # never a candidate effect
+# effects that act on a free slide through the table contact or the CoM's motion alone, so that they must also show
+# on a slide started after the sphere has left the object (release blocks, ``ResidualConfig.release_blocks``), where
+# the struck size, the strike's timing and the object-robot contact cannot act
+SLIDE_EFFECTS: tuple[str, ...] = ("linear_damping", "angular_damping", "friction_table", "table_tilt")
 
 
 def is_negligible(effect: Effect, theta, model: ObjectModel) -> bool:

@@ -79,7 +79,7 @@ from service.residuals.effects import (
     is_negligible,
     null_params,
 )
-from service.residuals.modes import FREE, IMPACT, ROBOT, classify, collision_vertices, mode_statistics, object_radius, sphere_gaps
+from service.residuals.modes import FREE, IMPACT, ROBOT, SLIDING, classify, collision_vertices, mode_statistics, object_radius, sphere_gaps
 from service.residuals.types import (
     MODES,
     EffectCandidate,
@@ -106,6 +106,7 @@ class Segment:
     w0: np.ndarray  # (3,)
     robot: RobotPath | None
     follow_through: bool = False  # a launch block the sphere pushes on (``restitution_follow_frames``): no restitution
+    launch: bool = False  # a launch block (``launches``): its release block can be cut (``release_segment``)
 
 
 def local_quadratic(p: np.ndarray, half: int) -> np.ndarray:
@@ -356,9 +357,72 @@ def make_segments(inputs: ResidualInputs, modes: list[np.ndarray], cfg: Residual
                 X0, v0, om0 = start_state(t[w0:w1], X[w0:w1], at, h)
                 follow = (cfg.restitution_follow_frames is not None and i in ev_start
                           and follow_frames(mode[i:j], tracked[i:j], ev_onset[i] - i) > cfg.restitution_follow_frames)
-                segs.append(Segment(k, i, j, t[i:j], X[i:j], tracked[i:j], mode[i:j], X0, v0, om0, robot, follow))
+                segs.append(Segment(k, i, j, t[i:j], X[i:j], tracked[i:j], mode[i:j], X0, v0, om0, robot, follow,
+                                    i in ev_start))
             i = j if ok else i + 1
     return segs
+
+
+def release_frame(seg: Segment) -> int | None:
+    """Index in a launch block of the last frame the sphere can have pushed the object on (None: no robot contact):
+    the last ``robot_contact`` frame k whose backward step the sphere made at least as fast as the object along the
+    object's own horizontal motion (v_sphere · d ≥ |v_object|, d the object's direction of motion over that step).
+
+    Model-free: once the braking sphere is slower than the object it can no longer push it, even while the contact
+    classifier's gap tolerance (``contact_tol_m``, 4 mm) still labels the frames ``robot_contact`` (on the lab's
+    strikes 1-2 frames after the separation, at 0.2-0.35 m/s). Speeds from frame differences of X_WO (W) and of the
+    sphere path interpolated at the block's times, m/s."""
+    if seg.robot is None:
+        return None
+    on = (np.asarray(seg.mode) == ROBOT) & np.asarray(seg.tracked, bool)
+    if not on.any():
+        return None
+    t = np.asarray(seg.t, float)
+    dt = np.maximum(np.diff(t), 1e-9)[:, None]
+    v_o = np.diff(seg.X_obs[:, :2, 3], axis=0) / dt
+    p_s = np.stack([np.interp(t, seg.robot.t, seg.robot.p_WE[:, k]) for k in range(2)], 1)
+    v_s = np.diff(p_s, axis=0) / dt
+    sp = np.linalg.norm(v_o, axis=1)
+    d = v_o / np.maximum(sp, 1e-9)[:, None]
+    push = np.r_[False, np.sum(v_s * d, axis=1) >= sp - 1e-9] & on
+    idx = np.flatnonzero(push)
+    return int(idx[-1]) if len(idx) else int(np.flatnonzero(on)[0])
+
+
+def release_segment(seg: Segment, gap: int, cfg: ResidualConfig) -> Segment | None:
+    """The release block of a launch block: the frames from ``gap`` frames after its release (``release_frame``) to
+    its end, started from the tracked state there; None when it is not a launch block, has no robot contact, or no
+    usable start.
+
+    The start state is ``start_state``'s model-free quadratic fit at the block's first frame on the frames after the
+    release only: up to ``init_fit_frames`` tracked frames of the slide from the start on (modes ``sliding`` or
+    ``robot_contact``; one-sided: a window across the stop would bend the quadratic), at least 4. From there the
+    sphere no longer pushes, so what the struck size, the strike's timing and the sphere contact did is in the start
+    state, the same for every model compared, and the block is rolled out without the sphere (``robot`` None: a hull
+    left too large would otherwise meet the braking sphere a few millimetres behind it and be pushed again in the
+    replay, which the observed slide did not have); what moves the rollout is what acts on the slide (friction,
+    dampings, tilt). Frames X_WO in W, t in s.
+    """
+    if not seg.launch:
+        return None
+    k = release_frame(seg)
+    if k is None:
+        return None
+    r = k + gap
+    n = len(seg.t)
+    if n - r < cfg.min_segment_frames:
+        return None
+    w1 = r
+    kfit = max(2, cfg.init_fit_frames)
+    while w1 < min(n, r + kfit) and seg.mode[w1] in (SLIDING, ROBOT) and seg.tracked[w1]:
+        w1 += 1
+    if w1 - r < 4:
+        return None
+    dt = float(np.median(np.diff(seg.t[r:w1])))
+    h = dt / max(1, math.ceil(dt / cfg.sim_substep_s - 1e-9))
+    X0, v0, w0 = start_state(seg.t[r:w1], seg.X_obs[r:w1], 0, h)
+    return Segment(seg.traj, seg.start + r, seg.stop, seg.t[r:], seg.X_obs[r:], seg.tracked[r:], seg.mode[r:], X0, v0,
+                   w0, None, False, False)
 
 
 def split_segments(segs: list[Segment], n_traj: int, cfg: ResidualConfig) -> tuple[list[Segment], list[Segment], np.ndarray]:
