@@ -785,6 +785,8 @@ def main() -> None:
             ResidualConfig(release_blocks=args.release_blocks)
         except ValueError as e:
             ap.error(f"--release-blocks: {e}")
+    if getattr(args, "release_fit", None) == "on" and getattr(args, "release_blocks", None) in (None, "off"):
+        ap.error("--release-fit on: needs --release-blocks N (rule 10, whose value it sets, is off without it)")
     if getattr(args, "save_outputs", None):  # made (or refused) now, not after the first cell's minutes of work
         try:
             Path(args.save_outputs).mkdir(parents=True, exist_ok=True)

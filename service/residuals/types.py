@@ -301,6 +301,9 @@ class ResidualConfig:
             raise ValueError(f"ResidualConfig.release_min_blocks must be an integer >= 1, not {v!r}")
         if not isinstance(self.release_fit, bool):
             raise ValueError(f"ResidualConfig.release_fit must be a bool, not {self.release_fit!r}")
+        if self.release_fit and self.release_blocks is None:
+            raise ValueError("ResidualConfig.release_fit needs release_blocks (it sets the value rule 10 judges at; "
+                             "with release_blocks None there is no rule 10)")
         v = self.restitution_threshold_mps
         if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v < np.inf):
             raise ValueError(f"ResidualConfig.restitution_threshold_mps must be a number >= 0 m/s, not {v!r}")

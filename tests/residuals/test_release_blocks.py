@@ -125,3 +125,6 @@ def test_config_release_blocks():
     for v in (0, 2.0, False):
         with pytest.raises(ValueError, match="release_min_blocks"):
             ResidualConfig(release_min_blocks=v)
+    assert ResidualConfig(release_blocks=1, release_fit=True).release_fit
+    with pytest.raises(ValueError, match="release_fit needs release_blocks"):
+        ResidualConfig(release_fit=True)  # no rule 10 to set the value of
