@@ -80,6 +80,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from service.tracking.geometry import backproject
 from service.transforms import X_inv, horizontal_turn, make_X, pose_distance, so3_exp, so3_log
 
 
@@ -731,7 +732,7 @@ def end_seen(P_W: np.ndarray, h_W: np.ndarray, depth: np.ndarray, mask: np.ndarr
         if not ok.any():
             cut += 1
             continue
-        P2 = np.stack([(u2[ok] - K[0, 2]) / K[0, 0] * z2[ok], (v2[ok] - K[1, 2]) / K[1, 1] * z2[ok], z2[ok]], 1)
+        P2 = backproject(depth, K, u2[ok], v2[ok])  # in C
         height = P2 @ X_WC[2, :3] + X_WC[2, 3] - table_height
         cut += bool(np.any((z2[ok] < zc - 0.01) & (height > 0.01)))
     return cut < max_cut * len(idx)
