@@ -1135,8 +1135,9 @@ def _refine_keyframes(keyframes: list[Keyframe], cfg: TrackingConfig, carver: "F
 def _slow_keyframe(X: np.ndarray, i: int, cfg: TrackingConfig) -> bool:
     """Whether frame i was taken in slow motion: the tracked poses X (N,4,4; X_WO) of frames i − refine_slow_frames
     … i + refine_slow_frames (clipped to the session) turn by at most ``refine_slow_deg`` (degrees) from each frame
-    to the next."""
-    a, b = max(0, i - cfg.refine_slow_frames), min(len(X) - 1, i + cfg.refine_slow_frames)
+    to the next; with ``refine_slow_from_start`` from frame 0 on (no fast turn before the keyframe either)."""
+    a = 0 if cfg.refine_slow_from_start else max(0, i - cfg.refine_slow_frames)
+    b = min(len(X) - 1, i + cfg.refine_slow_frames)
     return all(pose_distance(X[j], X[j + 1])[1] <= cfg.refine_slow_deg for j in range(a, b))
 
 

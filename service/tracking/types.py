@@ -113,6 +113,9 @@ class TrackingConfig:
     # fast motion can be farther off than the small radius corrects
     refine_slow_deg: float = 0.0
     refine_slow_frames: int = 2
+    # with it, the turn is checked from frame 0 to refine_slow_frames after the keyframe: a keyframe at rest after a
+    # fall inherits the fall's error (a topple's settled keyframes 13-17 mm off) and keeps refine_dist0
+    refine_slow_from_start: bool = False
     refine_slow_dist0: float = 0.006
     ba_iters: int = 10  # keyframe bundle adjustment (service.tracking.posegraph) iterations (0: off)
     ba_huber: float = 0.002  # Huber threshold of its point-to-plane residuals

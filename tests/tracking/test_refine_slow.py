@@ -85,3 +85,18 @@ def test_off_by_default():
 def test_bad_values_are_refused(field, v):
     with pytest.raises(ValueError, match=field):
         replace(TrackingConfig(), **{field: v})
+
+
+def test_from_start_a_keyframe_at_rest_after_the_fall_is_not_slow():
+    """At rest after a fall the local turn is slow, but the pose was reached through the fall: with
+    ``refine_slow_from_start`` only the frames before the fall (and not within 2 frames of it) count as slow."""
+    X = _track()
+    local = replace(TrackingConfig(), refine_slow_deg=4.0)
+    start = replace(local, refine_slow_from_start=True)
+    assert _slow_keyframe(X, 35, local) and not _slow_keyframe(X, 35, start)
+    assert [_slow_keyframe(X, i, start) for i in range(len(X))] == [i < 19 for i in range(len(X))]
+
+
+def test_from_start_must_be_a_bool():
+    with pytest.raises(ValueError, match="refine_slow_from_start"):
+        replace(TrackingConfig(), refine_slow_from_start=1)
