@@ -427,7 +427,7 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
     if cfg.refine_rounds > 0 and len(keyframes) > 2:
         _report(progress, 0.62, "refining keyframe poses")
         for _ in range(cfg.refine_rounds):
-            _refine_keyframes(keyframes, cfg, carver, icp_kw)
+            _refine_keyframes(keyframes, cfg, carver, icp_kw, X)
             model = _model_from(keyframes, cfg.model_voxel)
     if cfg.final_pass:
         for i in range(1, N):
@@ -1114,17 +1114,31 @@ def _spin_fall(feats: list, X: np.ndarray, model: ObjectModel, cfg: TrackingConf
     return res
 
 
-def _refine_keyframes(keyframes: list[Keyframe], cfg: TrackingConfig, carver: "FreeSpace | None", icp_kw: dict
-                      ) -> None:
+def _refine_keyframes(keyframes: list[Keyframe], cfg: TrackingConfig, carver: "FreeSpace | None", icp_kw: dict,
+                      X: np.ndarray | None = None) -> None:
     """One leave-one-out round: every keyframe but the first registered (its points P_W, from its pose X_WO) to the
     model of the others, its correspondence radius starting at ``refine_dist0`` (m) and shrinking to
-    ``icp_dist_min``; a good registration (``_good``) gives it its new pose (``_place_keyframe``). In place."""
+    ``icp_dist_min``; a good registration (``_good``) gives it its new pose (``_place_keyframe``). In place.
+    With ``refine_slow_deg`` > 0 and the tracked poses X (N,4,4; X_WO per frame), a keyframe taken in slow motion
+    (``_slow_keyframe``) starts at ``refine_slow_dist0`` instead."""
     for k in range(1, len(keyframes)):
         others = _model_from([kf for j, kf in enumerate(keyframes) if j != k], cfg.model_voxel)
         kf = keyframes[k]
-        r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, **{**icp_kw, "dist0": cfg.refine_dist0})
+        d0 = cfg.refine_dist0
+        if cfg.refine_slow_deg > 0 and X is not None and _slow_keyframe(X, kf.index, cfg):
+            d0 = cfg.refine_slow_dist0
+        r = icp(kf.P_W, kf.X_WO, others.tree, others.Q, others.N, **{**icp_kw, "dist0": d0})
         if _good(r, cfg):
             _place_keyframe(kf, r.X_WO, carver)
+
+
+def _slow_keyframe(X: np.ndarray, i: int, cfg: TrackingConfig) -> bool:
+    """Whether frame i was taken in slow motion: the tracked poses X (N,4,4; X_WO) of frames i − refine_slow_frames
+    … i + refine_slow_frames (clipped to the session) turn by at most ``refine_slow_deg`` (degrees) from each frame
+    to the next; with ``refine_slow_from_start`` from frame 0 on (no fast turn before the keyframe either)."""
+    a = 0 if cfg.refine_slow_from_start else max(0, i - cfg.refine_slow_frames)
+    b = min(len(X) - 1, i + cfg.refine_slow_frames)
+    return all(pose_distance(X[j], X[j + 1])[1] <= cfg.refine_slow_deg for j in range(a, b))
 
 
 def _regauge(o0: FrameObs, X: np.ndarray, model: ObjectModel, keyframes: list[Keyframe], carver: "FreeSpace | None",

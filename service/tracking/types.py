@@ -107,6 +107,16 @@ class TrackingConfig:
     # keyframes' surface 6-15 mm away and pull its pose (docs/tracking-findings.md, "Worst frames of pivots just
     # over 5°"); icp_dist_min (0.006) matches only within the displacement a pose already registered can be off by
     refine_dist0: float = 0.015
+    # with refine_slow_deg > 0 (0: off) only keyframes whose tracked poses turn by at most refine_slow_deg per frame
+    # over ± refine_slow_frames frames around them (at rest, a slow tilt) start at refine_slow_dist0 (m); the others
+    # (a fall, a fast roll) keep refine_dist0: a pose registered in slow motion is only a few mm off, one taken in
+    # fast motion can be farther off than the small radius corrects
+    refine_slow_deg: float = 0.0
+    refine_slow_frames: int = 2
+    # with it, the turn is checked from frame 0 to refine_slow_frames after the keyframe: a keyframe at rest after a
+    # fall inherits the fall's error (a topple's settled keyframes 13-17 mm off) and keeps refine_dist0
+    refine_slow_from_start: bool = False
+    refine_slow_dist0: float = 0.006
     ba_iters: int = 10  # keyframe bundle adjustment (service.tracking.posegraph) iterations (0: off)
     ba_huber: float = 0.002  # Huber threshold of its point-to-plane residuals
     final_pass: bool = True  # re-register every frame against the final model
@@ -435,6 +445,17 @@ class TrackingConfig:
                 and self.icp_dist_min <= self.refine_dist0 < float("inf")):
             raise ValueError(f"TrackingConfig.refine_dist0 must be finite and >= icp_dist_min = {self.icp_dist_min} (m), "
                              f"not {self.refine_dist0!r}")
+        if not (isinstance(self.refine_slow_deg, (int, float)) and not isinstance(self.refine_slow_deg, bool)
+                and 0 <= self.refine_slow_deg < float("inf")):
+            raise ValueError(f"TrackingConfig.refine_slow_deg must be finite and >= 0 (degrees per frame; 0: off), "
+                             f"not {self.refine_slow_deg!r}")
+        if isinstance(self.refine_slow_frames, bool) or not isinstance(self.refine_slow_frames, (int, np.integer)) \
+                or self.refine_slow_frames < 1:
+            raise ValueError(f"TrackingConfig.refine_slow_frames must be an integer >= 1, not {self.refine_slow_frames!r}")
+        if not (isinstance(self.refine_slow_dist0, (int, float)) and not isinstance(self.refine_slow_dist0, bool)
+                and self.icp_dist_min <= self.refine_slow_dist0 < float("inf")):
+            raise ValueError(f"TrackingConfig.refine_slow_dist0 must be finite and >= icp_dist_min = "
+                             f"{self.icp_dist_min} (m), not {self.refine_slow_dist0!r}")
         for name in ("spin_features", "spin_min_votes", "spin_smooth"):
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
