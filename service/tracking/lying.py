@@ -56,13 +56,11 @@ def axis_centre(Q: np.ndarray, a: np.ndarray, bin_m: float = 0.005, min_pts: int
     return c2[0] * e1 + c2[1] * e2
 
 
-def straight_stretch(Q: np.ndarray, a: np.ndarray, c: np.ndarray, *, bin_m: float = 0.005, tol: float = 0.002,
-                     min_len: float = 0.05, min_frac: float = 0.4, min_pts: int = 10
-                     ) -> tuple[bool, float, float]:
-    """(found, length (m), radius (m)) of the widest straight stretch of the radius profile of the model points Q
-    (M,3) about the axis (a, c): the median radius per height bin (``bin_m``, ≥ ``min_pts`` points), the bins
-    within ``tol`` of the widest, their longest run (gaps of one bin closed); found when it is at least ``min_len``
-    long and ``min_frac`` of the model's height (module docstring)."""
+def radius_profile(Q: np.ndarray, a: np.ndarray, c: np.ndarray, bin_m: float = 0.005, min_pts: int = 10
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(heights (B,), radii (B,), h (M,)) of the model points Q (M,3) about the axis line (direction a (3,), through c
+    (3,)), all in m: for every height bin of ``bin_m`` along a with at least ``min_pts`` points, its centre height and
+    the median distance of its points from the axis; h the points' heights along a from c."""
     d = Q - c
     h = d @ a
     r = np.linalg.norm(d - h[:, None] * a, axis=1)
@@ -72,9 +70,19 @@ def straight_stretch(Q: np.ndarray, a: np.ndarray, c: np.ndarray, *, bin_m: floa
         if m.sum() >= min_pts:
             hs.append(lo + bin_m / 2)
             rs.append(float(np.median(r[m])))
+    return np.array(hs), np.array(rs), h
+
+
+def straight_stretch(Q: np.ndarray, a: np.ndarray, c: np.ndarray, *, bin_m: float = 0.005, tol: float = 0.002,
+                     min_len: float = 0.05, min_frac: float = 0.4, min_pts: int = 10
+                     ) -> tuple[bool, float, float]:
+    """(found, length (m), radius (m)) of the widest straight stretch of the radius profile of the model points Q
+    (M,3) about the axis (a, c): the median radius per height bin (``bin_m``, ≥ ``min_pts`` points), the bins
+    within ``tol`` of the widest, their longest run (gaps of one bin closed); found when it is at least ``min_len``
+    long and ``min_frac`` of the model's height (module docstring)."""
+    hs, rs, h = radius_profile(Q, a, c, bin_m, min_pts)
     if len(hs) < 2:
         return False, 0.0, 0.0
-    hs, rs = np.array(hs), np.array(rs)
     idx = np.nonzero(rs >= rs.max() - tol)[0]
     best, start = (idx[0], idx[0]), idx[0]
     for prev, k in zip(idx[:-1], idx[1:]):
@@ -249,14 +257,10 @@ def base_rim(Q: np.ndarray, a: np.ndarray, base_h: float, bin_m: float = 0.005, 
     c = axis_centre(Q, a, bin_m, min_pts)
     if c is None:
         return None
-    d = Q - c
-    h = d @ a
-    r = np.linalg.norm(d - h[:, None] * a, axis=1)
-    rs = [float(np.median(r[(h >= lo) & (h < lo + bin_m)])) for lo in np.arange(h.min(), h.max() + bin_m, bin_m)
-          if np.count_nonzero((h >= lo) & (h < lo + bin_m)) >= min_pts]
-    if not rs:
+    _, rs, _ = radius_profile(Q, a, c, bin_m, min_pts)
+    if not len(rs):
         return None
-    return c + (base_h - float(c @ a)) * a, max(rs)
+    return c + (base_h - float(c @ a)) * a, float(rs.max())
 
 
 def rim_landing(X: np.ndarray, a: np.ndarray, b_O: np.ndarray, radius: float, table_z: float
