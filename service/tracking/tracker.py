@@ -823,8 +823,9 @@ def _resettle_axis(session, X: np.ndarray, tracked: np.ndarray, keyframes: list[
             moved.append(j)
     if not moved:
         return None
+    moved_set = set(moved)
     for kf in keyframes:
-        if kf.index in set(moved):
+        if kf.index in moved_set:
             _place_keyframe(kf, X[kf.index].copy(), carver)
     return _model_from(keyframes, cfg.model_voxel)
 
