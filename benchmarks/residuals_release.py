@@ -25,21 +25,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def blocks_line(ev, model, m1, e1, segs, eff, all_frames=False) -> tuple[str, np.ndarray, np.ndarray]:
-    """The error where ``eff`` acts per block (blocks with >= 3 of its frames), declared model against ``m1``, m."""
-    from service.residuals.loop import _acts_on, acting_errors
+    """The error where ``eff`` acts per block (blocks with >= 3 of its frames), declared model against ``m1``:
+    its component on its frames (``loop.acting_errors``), or with ``all_frames`` on every tracked frame of the block
+    (``loop.reduce_blocks``, as rule 10 reads release blocks); (text, before, after), m."""
+    from service.residuals.loop import _acts_on, acting_errors, reduce_blocks
 
     segs = [s for s in segs if _acts_on(s, eff)]
-    if all_frames:
-        from service.residuals.loop import reduce_blocks
-        b = reduce_blocks(ev.frame_split(model, dict(model.effects), segs), component=eff.component)
-        a = reduce_blocks(ev.frame_split(m1, {**model.effects, **e1}, segs), component=eff.component)
-        d = b - a
-        return (f"{len(segs):2d} blocks, {np.mean(b) * 1e3:6.2f} -> {np.mean(a) * 1e3:6.2f} mm "
-                f"({(np.mean(b) - np.mean(a)) / np.mean(b):+.0%}), better/worse {int(np.sum(d > 0))}/{int(np.sum(d < 0))}"), b, a
     if not segs:
         return "no block", np.zeros(0), np.zeros(0)
-    b = acting_errors(ev.frame_split(model, dict(model.effects), segs), segs, eff)
-    a = acting_errors(ev.frame_split(m1, {**model.effects, **e1}, segs), segs, eff)
+    if all_frames:
+        b = reduce_blocks(ev.frame_split(model, dict(model.effects), segs), component=eff.component)
+        a = reduce_blocks(ev.frame_split(m1, {**model.effects, **e1}, segs), component=eff.component)
+    else:
+        b = acting_errors(ev.frame_split(model, dict(model.effects), segs), segs, eff)
+        a = acting_errors(ev.frame_split(m1, {**model.effects, **e1}, segs), segs, eff)
     d = b - a
     txt = (f"{len(segs):2d} blocks, {np.mean(b) * 1e3:6.2f} -> {np.mean(a) * 1e3:6.2f} mm "
            f"({(np.mean(b) - np.mean(a)) / np.mean(b):+.0%}), better/worse {int(np.sum(d > 0))}/{int(np.sum(d < 0))}")
@@ -67,8 +66,18 @@ def main() -> None:
     args = ap.parse_args()
     hidden, name, _key, truth, _c = STRIKE_CASES[args.case]
     name = args.effect or name
-    theta = tuple(args.value) if args.value else (tuple(truth) if isinstance(truth, tuple) else (truth,))
+    if name is None:
+        ap.error(f"--case {args.case}: no hidden effect to compare; give --effect and --value")
+    if name not in REGISTRY:
+        ap.error(f"--effect: unknown effect {name!r}; known: {sorted(REGISTRY)}")
     eff = REGISTRY[name]
+    if args.value is None and truth is None:
+        ap.error(f"--case {args.case} has no true value of {name}; give --value")
+    theta = tuple(args.value) if args.value else (tuple(truth) if isinstance(truth, tuple) else (truth,))
+    if len(theta) != len(eff.null):
+        ap.error(f"--value: {name} takes {len(eff.null)} number(s), not {len(theta)} ({theta})")
+    if args.gap < 0:
+        ap.error(f"--gap: frames after the release, an integer >= 0, not {args.gap}")
     cfg = dataclasses.replace(ResidualConfig.fast(), segment_s=0.3)
     tot = {"launch": [[], []], "release": [[], []]}
     for seed in args.seeds:
