@@ -44,6 +44,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _env import library_versions
 from _overrides import off_or_float
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"  # shared/ sits beside the repository
@@ -799,6 +800,7 @@ def main() -> None:
         if unknown:
             ap.error(f"--candidates: unknown effects {unknown}; known: {sorted(REGISTRY)}")
     print("command:", " ".join(["python", *sys.argv]))
+    print("libraries:", library_versions())
     {"real": real, "synthetic": synthetic, "lab": lab, "strike": strike}[args.cmd](args)
 
 

@@ -43,6 +43,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _env import library_versions
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"  # shared/ sits beside the repository
 REAL = Path(SHARED, "data/real/franka_cube_rgbd_sequence")
@@ -364,6 +365,7 @@ def main() -> None:
         print(json.dumps(run_one(a.kind, a.one, cfg, a.surface_diag, a.save)))
         return
     print("command:", " ".join(shlex.quote(x) for x in [sys.executable] + sys.argv))
+    print("libraries:", library_versions())
     rows = []
     if a.only in (None, "synth"):
         a.work.mkdir(parents=True, exist_ok=True)
