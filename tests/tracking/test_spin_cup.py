@@ -73,7 +73,7 @@ def test_box_and_near_sphere_refused():
     assert not kappa_sep_axis(0.04 * d, Ns / np.linalg.norm(Ns, axis=1, keepdims=True), RATIO, ARC)[0]
 
 
-def test_tracker_closure_takes_the_cup_only_when_on():
+def test_tracker_closure_takes_the_cup_only_when_on(monkeypatch):
     Q, N = _cup()
     model = SimpleNamespace(Q=Q, N=N)
     n = 5
@@ -87,7 +87,16 @@ def test_tracker_closure_takes_the_cup_only_when_on():
     assert np.array_equal(X, np.tile(np.eye(4), (n, 1, 1)))  # no texture: θ = 0, poses unchanged
     from dataclasses import replace
 
+    import service.tracking.tilt as tilt
+
+    calls = []
+    monkeypatch.setattr(tilt, "prolate", lambda *a: True)  # as if the cup were taller than wide
+    monkeypatch.setattr(tilt, "tilt_closure", lambda *a, **k: calls.append(1) or None)
+    monkeypatch.setattr(tilt, "apply_tilt", lambda X, res: X)
     assert _spin_tilt(obs, X, model, replace(on, observable=True), on_cfg) is None  # no tilt closure on a cup
+    assert not calls
+    _spin_tilt(obs, X, model, replace(on, observable=True, by_kappa=False), on_cfg)  # an egg-like body: it runs
+    assert calls
 
 
 def test_config_validates_sep_kappa():
