@@ -391,7 +391,9 @@ class TrackingConfig:
     # spin) is taken for a body of revolution about its weakest rotation's eigen-axis when that rotation's κ <
     # spin_arc_tau, its radius profile fits within 2 mm and the next weakest rotation's κ is at least spin_sep_kappa
     # times larger (the separation judged by where the normals point; spin.kappa_sep_axis; no tilt closure then;
-    # 0: off; docs/tracking-findings.md "Mug pivots: the turn about the mug's own axis")
+    # 0: off; docs/tracking-findings.md "Mug pivots: the turn about the mug's own axis"). 2: design mug pivots 1818,
+    # 1819, 1910 worst 5.71/5.93/6.37 -> 3.07/5.03/5.50 deg; judge: gains on 2 of 8 mug pivots (1916 6.02 -> 4.59 deg
+    # worst) and 3 of 4 mug pushes, loses on none, bottles identical; off because the rule asked for 4 of 8 pivots
     spin_sep_kappa: float = 0.0
     # egg-like bodies (the spin axis found by its radius profile: every rotation about the centre weak): after the spin
     # closure, the rotations about the two short axes re-estimated from interior keypoints matched to frame 0 and
