@@ -967,6 +967,12 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
 
     tau = _spin_tau(model, cfg)
     axis = find_axis(model.Q, model.N, tau, cfg.spin_sep, cfg.spin_profile)  # (is_revolution, λ̂, a, c), fitted once
+    by_kappa = False
+    if not axis[0] and cfg.spin_sep_kappa > 0:  # a short open cup: its tilts as weak as its spin (spin.kappa_sep_axis)
+        from service.tracking.spin import kappa_sep_axis
+
+        axis = kappa_sep_axis(model.Q, model.N, cfg.spin_sep_kappa, cfg.spin_arc_tau)
+        by_kappa = axis[0]
     refused = _flat_faced(model, cfg, axis, len(X))  # a prism the axis test took for a body of revolution
     if refused is not None:
         return refused
@@ -996,6 +1002,10 @@ def _spin_closure(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, cfg: T
         res = smooth_twist(res, X, cfg.spin_twist_smooth, cap)
     if cfg.spin_pivot_deg > 0:  # the tilts of a pivot bridged without spin (service/tracking/fall.py)
         res = _spin_pivot(res, X, cfg, cap)
+    if by_kappa:
+        from dataclasses import replace as _replace
+
+        res = _replace(res, by_kappa=True)
     X[:] = apply_spin(X, res)
     return res
 
@@ -1088,8 +1098,8 @@ def _spin_tilt(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, spin: "Sp
     from service.tracking.spin import revolution_axis
     from service.tracking.tilt import apply_tilt, prolate, tilt_closure
 
-    if spin is None or not spin.is_revolution or spin.rejected or not spin.observable:
-        return None
+    if spin is None or not spin.is_revolution or spin.rejected or not spin.observable or spin.by_kappa:
+        return None  # (a cup taken by the κ separation has a definite axis: not an egg)
     if revolution_axis(model.Q, model.N, _spin_tau(model, cfg), cfg.spin_sep)[0]:  # one clearly weakest rotation
         return None
     if not prolate(model.Q, spin.axis_O, spin.point_O):
