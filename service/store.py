@@ -5,7 +5,9 @@ A stage's output is identified by
     key = sha256(stage, code version of the stage, input keys, config json)
 
 where the code version is a hash of the stage's source files (``service/<stage>/**/*.py`` and, transitively,
-every ``service`` module they import — Prefect's own task-source hashing would not see those), the input keys
+every ``service`` module they import — Prefect's own task-source hashing would not see those) and of the versions of
+Python and the numerical libraries the stages compute with (:func:`runtime_versions`: an upgrade of one of them can
+change a stage's output in its last digits, so it recomputes rather than mixes old and new results), the input keys
 are the keys of the upstream artifacts (or the upload's sha256 for ingest) and the config is the stage's
 config dataclass as canonical JSON. Same inputs, same code, same config: same key, and the stored output is
 reused. Any change to one of them gives a new key (the old artifact stays, nothing is overwritten).
@@ -70,11 +72,33 @@ def config_json(config: Any) -> str:
     return json.dumps(_canonical(config), sort_keys=True, separators=(",", ":"))
 
 
+# the libraries whose arithmetic a stage's output depends on (numerics, features, meshes, simulation)
+RUNTIME_PACKAGES = ("numpy", "scipy", "torch", "opencv-python-headless", "trimesh", "scikit-image", "pybullet", "rtree")
+
+
+@lru_cache(maxsize=1)
+def runtime_versions() -> dict[str, str]:
+    """``{"python": "3.11.7", "numpy": "2.4.6", …}`` for :data:`RUNTIME_PACKAGES` ("missing" when a package is
+    not installed). Part of every stage's code version and written into each manifest (``runtime``)."""
+    import platform
+    from importlib import metadata
+
+    def version(p: str) -> str:
+        try:
+            return metadata.version(p)
+        except metadata.PackageNotFoundError:
+            return "missing"
+
+    return {"python": platform.python_version(), **{p: version(p) for p in RUNTIME_PACKAGES}}
+
+
 def _hash_files(files: list[Path], base: Path) -> str:
+    """sha256 of the files (their paths under ``base`` and contents) and of :func:`runtime_versions`."""
     h = hashlib.sha256()
     for f in sorted(files):
         h.update(f.relative_to(base).as_posix().encode() + b"\0")
         h.update(hashlib.sha256(f.read_bytes()).digest())
+    h.update(json.dumps(runtime_versions(), sort_keys=True).encode())
     return h.hexdigest()
 
 
@@ -271,6 +295,7 @@ class ArtifactStore:
                 "stage": stage,
                 "key": key,
                 "code_version": self.code_version(stage),
+                "runtime": runtime_versions(),
                 "inputs": dict(inputs),
                 "config": _canonical(config),
                 "timings_s": {k: float(v) for k, v in (timings or {}).items()},

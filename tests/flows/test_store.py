@@ -159,3 +159,27 @@ def test_unavailable_stage():
     spec = StageSpec("ghost", "service.report", "service.report.json:FORMAT", (), lambda ctx: None)
     assert spec.unavailable_reason() == "stage not available yet"
     assert SPEC.unavailable_reason() is None
+
+
+def test_code_version_and_manifest_follow_the_runtime_libraries(tmp_path, monkeypatch):
+    """A new numpy (or any of RUNTIME_PACKAGES) gives every stage a new code version, so its outputs are computed
+    again instead of mixing results of two library versions; the manifest records the versions it was made with."""
+    import service.store as st
+
+    svc = tmp_path / "service"
+    (svc / "stagex").mkdir(parents=True)
+    (svc / "__init__.py").write_text("")
+    (svc / "stagex" / "__init__.py").write_text("A = 1\n")
+    here = st.runtime_versions()
+    assert set(here) == {"python", *st.RUNTIME_PACKAGES} and here["numpy"] == np.__version__
+    st.stage_code_version.cache_clear()
+    v1 = st.stage_code_version("stagex", svc)
+    monkeypatch.setattr(st, "runtime_versions", lambda: {**here, "numpy": "0.0.1"})
+    st.stage_code_version.cache_clear()
+    assert st.stage_code_version("stagex", svc) != v1
+    store = ArtifactStore(tmp_path / "artifacts", service_dir=svc)
+    ref = store.save("stagex", store.key("stagex", {}, {}), Value(np.zeros(2), "z"), inputs={}, config={})
+    man = json.loads((Path(ref.path) / "manifest.json").read_text())
+    assert man["runtime"]["numpy"] == "0.0.1" and man["code_version"] == store.code_version("stagex")
+    st.stage_code_version.cache_clear()
+    st.stage_files.cache_clear()
