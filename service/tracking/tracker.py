@@ -784,7 +784,8 @@ def _resettle_axis(session, X: np.ndarray, tracked: np.ndarray, keyframes: list[
     part is dropped with the table clearance or hidden) to the top, only its top end tested. ``axis_shift`` gives one
     shift per direction for the stretch or refuses it (along u: settled lengths up to ``resettle_box_slide_short``
     shorter than the standing height, since the reference's base end is exact and both settled ends are outlines,
-    counted in at least ``resettle_box_slide_frac`` of the settled frames). Every frame of the stretch then moves by
+    counted in at least ``resettle_box_slide_frac`` of the settled frames, at least ``resettle_box_slide_min``: the
+    middle of two outlines is biased by half the difference of what each loses). Every frame of the stretch then moves by
     the shifts in W (X_WO's translation only), its keyframes with it, and the model is rebuilt. Updates X, keyframes
     and carver in place; returns the rebuilt model, or None when nothing moved."""
     from service.tracking.resettle import axis_extent, axis_shift, box_face, end_seen, moved_along, table_end
@@ -835,7 +836,8 @@ def _resettle_axis(session, X: np.ndarray, tracked: np.ndarray, keyframes: list[
             u = -base_n
             shifts.append((u, axis_shift(extents(ref_frames, u, standing=True), extents(stretch[::stride], u),
                                          len_short=cfg.resettle_box_slide_short,
-                                         min_frac=cfg.resettle_box_slide_frac)))
+                                         min_frac=cfg.resettle_box_slide_frac,
+                                         min_shift=cfg.resettle_box_slide_min)))
         shifts = [(d, sh) for d, sh in shifts if sh is not None]
         if not shifts:
             continue
