@@ -62,7 +62,10 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
 8. After the flush (``tracker._resettle_axis``, ``resettle_box_axis``): a box's settled stretch moved along its tip
    axis h so that the middle of its two ends along h (``axis_extent``: the extreme of the mask's depth points, both
    ends seen, ``end_seen``) lies where the frames before the fall saw it (``axis_shift``, ``moved_along``): the
-   landing's sideways slide, which no surface seen before and after the landing fixes.
+   landing's sideways slide, which no surface seen before and after the landing fixes. With ``resettle_box_slide``
+   (off) the same along the box's up axis, which the topple lays along the tipping direction f: the middle of the
+   settled ends along it against the standing box's, from the table under its base (``table_end``) to its top (the
+   landing's slide beyond the pure turn; the base end is often hidden where the box stood, then nothing is moved).
 What is left: the join is 0.5–2° off (a yaw the table does not fix) and up to 9 mm sideways; the base test is a lower bound of the slide
 along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
