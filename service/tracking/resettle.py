@@ -62,7 +62,10 @@ Mechanism (in the tracking loop, ``tracker._resettle_check``):
 8. After the flush (``tracker._resettle_axis``, ``resettle_box_axis``): a box's settled stretch moved along its tip
    axis h so that the middle of its two ends along h (``axis_extent``: the extreme of the mask's depth points, both
    ends seen, ``end_seen``) lies where the frames before the fall saw it (``axis_shift``, ``moved_along``): the
-   landing's sideways slide, which no surface seen before and after the landing fixes.
+   landing's sideways slide, which no surface seen before and after the landing fixes. With ``resettle_box_slide``
+   (off) the same along the box's up axis, which the topple lays along the tipping direction f: the middle of the
+   settled ends along it against the standing box's, from the table under its base (``table_end``) to its top (the
+   landing's slide beyond the pure turn; the base end is often hidden where the box stood, then nothing is moved).
 What is left: the join is 0.5–2° off (a yaw the table does not fix) and up to 9 mm sideways; the base test is a lower bound of the slide
 along f (a join that overshoots is not pulled back), and it needs the frames to see the table behind the base.
 References: rigid-body toppling about a contact edge (e.g. Lynch & Mason 1999, "Dynamic nonprehensile
@@ -738,6 +741,17 @@ def end_seen(P_W: np.ndarray, h_W: np.ndarray, depth: np.ndarray, mask: np.ndarr
     return cut < max_cut * len(idx)
 
 
+def table_end(X_WO: np.ndarray, u_O: np.ndarray, table_height: float, min_cos: float = 0.9) -> float:
+    """The position (m) along the unit body direction ``u_O`` (3,, in O) of the table plane z = ``table_height`` (W)
+    under the pose X_WO (4,4), for a body standing with u_O upright (its base on the table): the base end of its extent
+    along u_O, which the mask's depth points do not give (the points within the table clearance are dropped and an
+    occluder often hides the lower part). NaN when u_O is more than acos(``min_cos``) from the vertical in W."""
+    c = float(X_WO[2, :3] @ u_O)
+    if c < min_cos:
+        return float("nan")
+    return (table_height - float(X_WO[2, 3])) / c
+
+
 def moved_along(X_WO: np.ndarray, h_O: np.ndarray, shift: float) -> np.ndarray:
     """Pose X_WO (4,4) with its origin moved by ``shift`` (m) along the body direction h_O (3,, unit, in O), taken
     in W at that pose (R h_O); the rotation kept. With ``shift`` from ``axis_shift`` the frame's extent along h_O
@@ -748,12 +762,14 @@ def moved_along(X_WO: np.ndarray, h_O: np.ndarray, shift: float) -> np.ndarray:
 
 
 def axis_shift(ref: np.ndarray, post: np.ndarray, len_tol: float = 0.006, spread_tol: float = 0.003,
-               min_frac: float = 0.5, min_shift: float = 0.002) -> float | None:
+               min_frac: float = 0.5, min_shift: float = 0.002, len_short: float | None = None) -> float | None:
     """The shift (m) along a box's axis h that puts the settled frames' ends where the frames before the fall saw
     them: ``ref`` (K,2) and ``post`` (M,2) the (lo, hi) extents along h in O (``axis_extent``) of the frames before
     the fall and of the settled frames with both ends seen (``end_seen``; rows of NaN where not). The box's middle
     along h is (lo + hi) / 2 in both: the reference is the median over ``ref``; a settled frame counts when its length
-    hi − lo is within ``len_tol`` of the reference's (both ends of the same box); the shift is the median of the
+    hi − lo is within ``len_tol`` of the reference's (both ends of the same box; with ``len_short`` set, from
+    ``len_short`` shorter to ``len_tol`` longer: a reference whose end is exact, such as the table under a standing
+    box's base, against settled ends short by the pixels their outline loses); the shift is the median of the
     counted frames' middles minus the reference's. None (no shift) when fewer than 3 reference frames, fewer than
     ``min_frac`` of the settled frames (and fewer than 5) count, the counted frames' shifts spread (interquartile
     range) more than ``spread_tol``, or the shift is under ``min_shift`` (the measurement's own bias, about 1 mm)."""
@@ -764,7 +780,8 @@ def axis_shift(ref: np.ndarray, post: np.ndarray, len_tol: float = 0.006, spread
         return None
     mid0, L0 = float(np.median(ref.sum(1) / 2)), float(np.median(ref[:, 1] - ref[:, 0]))
     ok = np.isfinite(post).all(1)
-    ok[ok] = np.abs(post[ok, 1] - post[ok, 0] - L0) <= len_tol
+    d = post[ok, 1] - post[ok, 0] - L0
+    ok[ok] = (d <= len_tol) & (d >= -(len_tol if len_short is None else len_short))
     if ok.sum() < max(5, min_frac * len(post)):
         return None
     c = post[ok].sum(1) / 2 - mid0

@@ -449,7 +449,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
         if cfg.resettle_flush_deg > 0 and landings:  # the settled stretch flush with the table, re-registered (after the
             # gauge: the base the object stood on is -z in the final O)
             model = _resettle_flush(session, obs, X, tracked, frac, rmse, keyframes, carver, landings, cfg) or model
-        if cfg.resettle_box_axis and landings:  # the settled box's position along the tip axis from its ends
+        if (cfg.resettle_box_axis or cfg.resettle_box_slide) and landings:  # the settled box's position along the
+            # tip axis (and, with resettle_box_slide, along the tipping direction) from its ends
             model = _resettle_axis(session, X, tracked, keyframes, carver, landings, cfg) or model
     spin = tilt = None
     if cfg.spin_closure:
@@ -769,17 +770,25 @@ def _resettle_axis(session, X: np.ndarray, tracked: np.ndarray, keyframes: list[
                    carver: "FreeSpace | None", landings: list, cfg: TrackingConfig, stride: int = 2
                    ) -> ObjectModel | None:
     """The settled stretch of every landing checked (as ``_resettle_flush``: settled frame i up to the next fall)
-    moved along the box's tip axis so that its ends lie where the frames before the fall saw them. A topple turns the
-    box about an axis along one of its sides, h; nothing seen both before and after the landing fixes its position
-    along h, but both views see the box's two ends along h (the extreme of the mask's depth points along h), and
-    their middle is one point of the rigid box. The axis: the turn from frame 0 to X[i] about its axis, made
-    perpendicular to the base normal and taken to the box's side direction nearest it (``resettle.box_face`` of the
-    pre-fall model; no box, no shift). Every ``stride``-th tracked frame before the fall (from the previous settled
-    frame) and of the stretch: the extent along h in O (``axis_extent``), kept when both ends are seen
-    (``end_seen``); ``axis_shift`` gives one shift for the stretch or refuses it. Every frame of the stretch then moves
-    by that shift along h in W (X_WO's translation only), its keyframes with it, and the model is rebuilt. Updates
-    X, keyframes and carver in place; returns the rebuilt model, or None when nothing moved."""
-    from service.tracking.resettle import axis_extent, axis_shift, box_face, end_seen, moved_along
+    moved along the box's tip axis so that its ends lie where the frames before the fall saw them
+    (``resettle_box_axis``), and along its up axis, which the topple lays along the tipping direction
+    (``resettle_box_slide``). A topple turns the box about an axis along one of its sides, h; nothing seen both before
+    and after the landing fixes its position along h, nor the landing's slide beyond the pure turn along the tipping
+    direction f, but the settled frames see the box's two ends along h and, in some views, along f (the extreme of the
+    mask's depth points), and their middle is one point of the rigid box. The axis: the turn from frame 0 to X[i] about
+    its axis, made perpendicular to the base normal and taken to the box's side direction nearest it
+    (``resettle.box_face`` of the pre-fall model; no box, no shift); the up axis u is the base normal's opposite (the
+    standing box's height, lying along f after the turn). Every ``stride``-th tracked frame before the fall (from the
+    previous settled frame) and of the stretch: the extent in O (``axis_extent``), kept when both ends are seen
+    (``end_seen``); before the fall the extent along u runs from the table under the base (``table_end``: the lower
+    part is dropped with the table clearance or hidden) to the top, only its top end tested. ``axis_shift`` gives one
+    shift per direction for the stretch or refuses it (along u: settled lengths up to ``resettle_box_slide_short``
+    shorter than the standing height, since the reference's base end is exact and both settled ends are outlines,
+    counted in at least ``resettle_box_slide_frac`` of the settled frames, at least ``resettle_box_slide_min``: the
+    middle of two outlines is biased by half the difference of what each loses). Every frame of the stretch then moves by
+    the shifts in W (X_WO's translation only), its keyframes with it, and the model is rebuilt. Updates X, keyframes
+    and carver in place; returns the rebuilt model, or None when nothing moved."""
+    from service.tracking.resettle import axis_extent, axis_shift, box_face, end_seen, moved_along, table_end
 
     base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
     moved: list[int] = []
@@ -801,25 +810,40 @@ def _resettle_axis(session, X: np.ndarray, tracked: np.ndarray, keyframes: list[
         if side is None:
             continue  # not a box
         h = side[0]
+        seen: dict[int, tuple] = {}
 
-        def extents(frames: list[int]) -> np.ndarray:
+        def extents(frames: list[int], d: np.ndarray, standing: bool = False) -> np.ndarray:
             out = np.full((len(frames), 2), np.nan)
             for k, j in enumerate(frames):
-                P_W, depth, mask = _end_points(session, j, cfg)
+                if j not in seen:
+                    seen[j] = _end_points(session, j, cfg)
+                P_W, depth, mask = seen[j]
                 if len(P_W) < cfg.min_points:
                     continue
-                h_W = X[j][:3, :3] @ h
-                if all(end_seen(P_W, sgn * h_W, depth, mask, session.K, session.X_WC, session.table_height)
-                       for sgn in (1.0, -1.0)):
-                    out[k] = axis_extent(P_W, X[j], h)
+                d_W = X[j][:3, :3] @ d
+                if all(end_seen(P_W, sgn * d_W, depth, mask, session.K, session.X_WC, session.table_height)
+                       for sgn in ((1.0,) if standing else (1.0, -1.0))):
+                    out[k] = axis_extent(P_W, X[j], d)
+                    if standing:
+                        out[k, 0] = table_end(X[j], d, session.table_height)
             return out
 
         stretch = [j for j in range(i, end) if tracked[j]]
-        shift = axis_shift(extents(ref_frames), extents(stretch[::stride]))
-        if shift is None:
+        shifts = []
+        if cfg.resettle_box_axis:
+            shifts.append((h, axis_shift(extents(ref_frames, h), extents(stretch[::stride], h))))
+        if cfg.resettle_box_slide:
+            u = -base_n
+            shifts.append((u, axis_shift(extents(ref_frames, u, standing=True), extents(stretch[::stride], u),
+                                         len_short=cfg.resettle_box_slide_short,
+                                         min_frac=cfg.resettle_box_slide_frac,
+                                         min_shift=cfg.resettle_box_slide_min)))
+        shifts = [(d, sh) for d, sh in shifts if sh is not None]
+        if not shifts:
             continue
         for j in range(i, end):
-            X[j] = moved_along(X[j], h, shift)
+            for d, sh in shifts:
+                X[j] = moved_along(X[j], d, sh)
             moved.append(j)
     if not moved:
         return None

@@ -3,10 +3,10 @@ end_seen, axis_shift, moved_along; tracker._resettle_axis)."""
 
 import numpy as np
 
-from service.tracking.resettle import axis_extent, axis_shift, end_seen, moved_along
+from service.tracking.resettle import axis_extent, axis_shift, end_seen, moved_along, table_end
 from service.transforms import make_X, so3_exp
 
-from tests.tracking.test_resettle import box_faces, settled_truth
+from tests.tracking.test_resettle import SIZE, box_faces, settled_truth
 
 
 def _seen(X_WO: np.ndarray, cam: np.ndarray) -> np.ndarray:
@@ -107,3 +107,66 @@ def test_an_end_is_seen_unless_something_in_front_cuts_it():
     assert P_W[:, 0].max() < 0.03
     assert not end_seen(P_W, h, depth, mask, K, X_WC, 0.0)
     assert end_seen(P_W, -h, depth, mask, K, X_WC, 0.0)
+
+
+def _slide_extents(poses_true: list, poses_tracked: list, u_O: np.ndarray, cam: np.ndarray, table: float,
+                   standing: bool, lost: float = 0.0, cut: float | None = None) -> np.ndarray:
+    """Extents along the box's up axis u: standing, the top from the seen points and the base from the table
+    (``table_end``; the lower part hidden below 3 cm from the bottom); lying, both ends from the seen points, each
+    end's outermost ``lost`` (m) of outline lost, and with ``cut`` the points below ``cut`` along u not seen (the base
+    end hidden)."""
+    out = []
+    for Xt, Xk in zip(poses_true, poses_tracked):
+        P_W = _seen(Xt, cam)
+        s = (P_W - Xt[:3, 3]) @ (Xt[:3, :3] @ u_O)
+        half = SIZE[2] / 2
+        if standing:
+            P_W = P_W[s > -half + 0.03]
+        else:
+            P_W = P_W[(s > -half + lost) & (s < half - lost)]
+            if cut is not None:
+                P_W = P_W[(P_W - Xt[:3, 3]) @ (Xt[:3, :3] @ u_O) > cut]
+        lo, hi = axis_extent(P_W, Xk, u_O)
+        out.append((table_end(Xk, u_O, table) if standing else lo, hi))
+    return np.array(out)
+
+
+def test_table_end_is_the_base_of_a_standing_box_and_nan_for_a_lying_one():
+    X_r, X_s, h_O, cam, ref_true, post_true = _scene()
+    u_O = np.array([0.0, 0.0, 1.0])
+    assert abs(table_end(X_r, u_O, 0.02) + SIZE[2] / 2) < 1e-9  # the base, half the height below the centre
+    tilted = make_X(so3_exp(np.array([np.radians(10.0), 0.0, 0.0])) @ X_r[:3, :3], X_r[:3, 3])
+    assert abs(table_end(tilted, u_O, 0.02) + SIZE[2] / 2 / np.cos(np.radians(10.0))) < 1e-9
+    assert np.isnan(table_end(X_s, u_O, 0.02))  # lying: u is horizontal
+
+
+def test_settled_box_moved_along_the_tipping_direction_onto_its_standing_ends():
+    X_r, X_s, h_O, cam, ref_true, post_true = _scene()
+    u_O = np.array([0.0, 0.0, 1.0])  # the box's up axis: along the tipping direction once it lies
+    f_W = X_s[:3, :3] @ u_O
+    assert abs(f_W[2]) < 1e-9  # lying along the table
+    ref = _slide_extents(ref_true, ref_true, u_O, cam, 0.02, standing=True)
+    assert np.allclose(ref[:, 1] - ref[:, 0], SIZE[2], atol=2e-3)  # the standing height, table to top
+    for off in (-0.0087, 0.005):  # the tracked settled pose short (the landing's slide) or beyond it along f
+        X_k = moved_along(X_s, u_O, off)
+        post = _slide_extents(post_true, [X_k] * 20, u_O, cam, 0.02, standing=False, lost=0.004)
+        assert axis_shift(ref, post) is None  # 8 mm short: refused by the tip axis' symmetric 6 mm length test
+        shift = axis_shift(ref, post, len_short=0.02, min_frac=0.3)
+        assert shift is not None and abs(shift + off) < 1e-3
+        X_fixed = moved_along(X_k, u_O, shift)
+        assert np.linalg.norm(X_fixed[:3, 3] - X_s[:3, 3]) < 1e-3
+        assert np.allclose(X_fixed[:3, :3], X_s[:3, :3])
+
+
+def test_slide_refused_when_the_base_end_is_hidden_or_too_few_frames_see_both_ends():
+    X_r, X_s, h_O, cam, ref_true, post_true = _scene()
+    u_O = np.array([0.0, 0.0, 1.0])
+    ref = _slide_extents(ref_true, ref_true, u_O, cam, 0.02, standing=True)
+    X_k = moved_along(X_s, u_O, -0.0087)
+    hidden = _slide_extents(post_true, [X_k] * 20, u_O, cam, 0.02, standing=False, lost=0.004, cut=-0.06)
+    assert axis_shift(ref, hidden, len_short=0.02, min_frac=0.3) is None  # 30 mm of the base end hidden
+    post = _slide_extents(post_true, [X_k] * 20, u_O, cam, 0.02, standing=False, lost=0.004)
+    few = post.copy()
+    few[:15] = np.nan  # both ends seen in 5 of 20 settled frames
+    assert axis_shift(ref, few, len_short=0.02, min_frac=0.3) is None
+    assert axis_shift(ref, few, len_short=0.02, min_frac=0.25) is not None

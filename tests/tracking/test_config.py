@@ -24,6 +24,12 @@ def test_defaults_and_fast_are_valid():
     ({"resettle_box_flush": 1}, ["resettle_box_flush"]),
     ({"resettle_box_axis": "yes"}, ["resettle_box_axis"]),
     ({"resettle_box_rest": -0.001}, ["resettle_box_rest"]),
+    ({"resettle_box_slide": 1}, ["resettle_box_slide"]),
+    ({"resettle_box_slide_short": -0.01}, ["resettle_box_slide_short"]),
+    ({"resettle_box_slide_short": float("nan")}, ["resettle_box_slide_short"]),
+    ({"resettle_box_slide_frac": 1.5}, ["resettle_box_slide_frac"]),
+    ({"resettle_box_slide_frac": True}, ["resettle_box_slide_frac"]),
+    ({"resettle_box_slide_min": -0.001}, ["resettle_box_slide_min"]),
     ({"resettle_box_rest": float("nan")}, ["resettle_box_rest"]),
 ])
 def test_bad_settings_are_refused_with_the_field_named(change, words):
