@@ -23,6 +23,10 @@ def test_defaults_and_fast_are_valid():
     ({"resettle_box_drop": 1}, ["resettle_box_drop"]),
     ({"resettle_box_flush": 1}, ["resettle_box_flush"]),
     ({"resettle_box_axis": "yes"}, ["resettle_box_axis"]),
+    ({"lie_axis_ends": 1}, ["lie_axis_ends"]),
+    ({"lie_axis_short": -0.001}, ["lie_axis_short"]),
+    ({"lie_axis_min_shift": float("nan")}, ["lie_axis_min_shift"]),
+    ({"lie_axis_spread": float("inf")}, ["lie_axis_spread"]),
     ({"resettle_box_rest": -0.001}, ["resettle_box_rest"]),
     ({"resettle_box_rest": float("nan")}, ["resettle_box_rest"]),
 ])
