@@ -346,39 +346,53 @@ def lying_runs(lying: np.ndarray, min_len: int = 5, gap: int = 3) -> list[tuple[
     return [(a, b) for a, b in runs if b - a >= min_len]
 
 
-def axis_end_shift(base: float | None, top: float | None, post: np.ndarray, short: float, *,
-                   len_tol: float = 0.008, spread_tol: float = 0.004, min_n: int = 5, min_frac: float = 0.5,
-                   min_shift: float = 0.008) -> float | None:
-    """The shift (m) along a lying body's axis a (to apply with ``resettle.moved_along``) that puts its seen ends where
-    the model's ends are: ``base`` and ``top`` the ends along a in O (the base plane from the table at frame 0, the top
-    from the standing frames; None when unknown), ``post`` (M,2) per lying frame the (lo, hi) extent of its mask along
-    a in O (``resettle.axis_extent``), NaN in a column whose end is not seen (``resettle.end_seen``). Per frame: with
-    both ends seen (and both known) the middle minus the model's middle, when the length is within ``len_tol`` of the
-    model's length less 2 ``short``; with one seen, that end minus the model's, less the shortfall ``short`` toward the
-    inside. None when fewer than ``min_n`` and ``min_frac`` of the frames count, the counted offsets spread
-    (interquartile range) more than ``spread_tol``, or the median offset is under ``min_shift``."""
+def axis_end_offsets(base: float | None, top: float | None, post: np.ndarray, short: float,
+                     len_tol: float = 0.008) -> np.ndarray:
+    """(M,) the offset (m) along a lying body's axis a of each lying frame from the model's ends, NaN where the frame
+    does not count: ``base`` and ``top`` the ends along a in O (the base plane from the table at frame 0, the top from
+    the standing frames; None when unknown), ``post`` (M,2) per lying frame the (lo, hi) extent of its mask along a in
+    O (``resettle.axis_extent``), NaN in a column whose end is not seen (``resettle.end_seen``). With both ends seen
+    (and both known): the middle minus the model's middle, when the length is within ``len_tol`` of the model's
+    length less 2 ``short`` (else an end is cut that the end test passed, and the frame does not count); with one
+    seen, that end minus the model's, less the mask's shortfall ``short`` toward the inside. A frame whose pose sits
+    δ along a from the body's place has its points carried into O at −δ: the offset is −δ, and
+    ``resettle.moved_along(X, a, offset)`` puts it back."""
     post = np.asarray(post, float).reshape(-1, 2)
+    c = np.full(len(post), np.nan)
     if len(post) == 0 or (base is None and top is None):
-        return None
+        return c
     lo_ok = np.isfinite(post[:, 0]) & (base is not None)
     hi_ok = np.isfinite(post[:, 1]) & (top is not None)
-    c = np.full(len(post), np.nan)
     if base is not None and top is not None:
         both = lo_ok & hi_ok
-        L = post[both, 1] - post[both, 0]
-        good = np.abs(L - (top - base - 2.0 * short)) <= len_tol
-        c[np.nonzero(both)[0][good]] = post[both, :].sum(1)[good] / 2.0 - (base + top) / 2.0
+        L = post[:, 1] - post[:, 0]
+        good = both & (np.abs(L - (top - base - 2.0 * short)) <= len_tol)
+        c[good] = post[good].sum(1) / 2.0 - (base + top) / 2.0
         lo_ok &= ~both
         hi_ok &= ~both
     if base is not None:
         c[lo_ok] = post[lo_ok, 0] - base - short
     if top is not None:
         c[hi_ok] = post[hi_ok, 1] - top + short
-    c = c[np.isfinite(c)]
-    if len(c) < max(min_n, min_frac * len(post)):
+    return c
+
+
+def axis_end_shift(c: np.ndarray, t: np.ndarray, *, window: float = 15.0, spread_tol: float = 0.004, min_n: int = 5,
+                   min_frac: float = 0.5, min_shift: float = 0.008) -> np.ndarray | None:
+    """(M,) the shift (m) along a lying body's axis of each measured frame of one lying stretch (frame numbers t (M,)),
+    from its offsets c (M,) (``axis_end_offsets``, NaN: not counted): the running median of the counted offsets within
+    ± ``window`` frames (the loop's slide along the axis grows while the body is pushed and rolls: development 1788
+    −65 → −56 mm over 200 frames), at the frames without one the nearest counted value. None (no shift) when fewer
+    than ``min_n`` and ``min_frac`` of the frames count, the counted offsets spread about their running median more
+    than ``spread_tol`` (interquartile range: the ends disagree), or the stretch's median offset is under
+    ``min_shift``."""
+    c, t = np.asarray(c, float), np.asarray(t, float)
+    ok = np.isfinite(c)
+    if ok.sum() < max(min_n, min_frac * len(c)):
         return None
-    q1, q3 = np.quantile(c, [0.25, 0.75])
-    shift = float(np.median(c))
-    if q3 - q1 > spread_tol or abs(shift) < min_shift:
+    tc, cc = t[ok], c[ok]
+    run = np.array([np.median(cc[np.abs(tc - x) <= window]) for x in tc])
+    q1, q3 = np.quantile(cc - run, [0.25, 0.75])
+    if q3 - q1 > spread_tol or abs(float(np.median(cc))) < min_shift:
         return None
-    return shift
+    return np.interp(t, tc, run)

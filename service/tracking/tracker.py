@@ -851,11 +851,13 @@ def _lying_axis(session, X: np.ndarray, tracked: np.ndarray, model: ObjectModel,
     that the ends its mask shows lie at the model's ends (``lying.axis_end_shift``, shortfall ``lie_axis_short``): the
     base plane where the table was at frame 0, the top at the median extreme along a of the standing frames (every
     ``stride``-th tracked frame before the first stretch with a within ``lie_level_stand_deg`` of the vertical and its
-    top seen). Per stretch, every ``stride``-th tracked frame's extent along a with each end kept only where it is seen
-    (``_end_extents``); one shift for the stretch, or none. The stretch's frames move by it along a in W (translation
-    only, ``resettle.moved_along``), its keyframes with them, and the model is rebuilt. Updates X, keyframes and
+    top seen). Per stretch, every ``stride``-th lying frame's extent along a with each end kept only where it is seen
+    (``_end_extents``), its offset (``lying.axis_end_offsets``) and the running median of the offsets over
+    ± ``lie_axis_window`` frames (``lying.axis_end_shift``), or no shift for the stretch. Every frame of the stretch
+    moves by its shift (linear between the measured frames) along a in W (translation only,
+    ``resettle.moved_along``), its keyframes with them, and the model is rebuilt. Updates X, keyframes and
     carver in place; returns the rebuilt model, or None when nothing moved."""
-    from service.tracking.lying import axis_end_shift, lying_frames, lying_geometry, lying_runs
+    from service.tracking.lying import axis_end_offsets, axis_end_shift, lying_frames, lying_geometry, lying_runs
     from service.tracking.resettle import moved_along
 
     if spin is None or not spin.is_revolution:
@@ -879,13 +881,14 @@ def _lying_axis(session, X: np.ndarray, tracked: np.ndarray, model: ObjectModel,
     moved: list[int] = []
     for s, e in runs:
         frames = [j for j in range(s, e) if lying[j]][::stride]
-        shift = axis_end_shift(base, top, _end_extents(session, X, frames, a, cfg, each=True), cfg.lie_axis_short,
-                               len_tol=cfg.lie_axis_len_tol, spread_tol=cfg.lie_axis_spread,
+        c = axis_end_offsets(base, top, _end_extents(session, X, frames, a, cfg, each=True), cfg.lie_axis_short,
+                             cfg.lie_axis_len_tol)
+        shift = axis_end_shift(c, np.array(frames), window=cfg.lie_axis_window, spread_tol=cfg.lie_axis_spread,
                                min_shift=cfg.lie_axis_min_shift)
         if shift is None:
             continue
-        for j in range(s, e):
-            X[j] = moved_along(X[j], a, shift)
+        for j, sh in zip(range(s, e), np.interp(np.arange(s, e), frames, shift)):
+            X[j] = moved_along(X[j], a, float(sh))
             moved.append(j)
     if not moved:
         return None
