@@ -878,7 +878,7 @@ def _lying_axis(session, X: np.ndarray, tracked: np.ndarray, model: ObjectModel,
     tops = _end_extents(session, X, stand, a, cfg, each=True)[:, 1]
     tops = tops[np.isfinite(tops)]
     top = float(np.median(tops)) if len(tops) >= 3 else None
-    moved: list[int] = []
+    moved: dict[int, float] = {}  # frame -> its shift along a (m)
     for s, e in runs:
         frames = [j for j in range(s, e) if lying[j]][::stride]
         c = axis_end_offsets(base, top, _end_extents(session, X, frames, a, cfg, each=True), cfg.lie_axis_short,
@@ -889,13 +889,12 @@ def _lying_axis(session, X: np.ndarray, tracked: np.ndarray, model: ObjectModel,
             continue
         for j, sh in zip(range(s, e), np.interp(np.arange(s, e), frames, shift)):
             X[j] = moved_along(X[j], a, float(sh))
-            moved.append(j)
+            moved[j] = float(sh)
     if not moved:
         return None
-    moved_set = set(moved)
-    for kf in keyframes:
-        if kf.index in moved_set:
-            _place_keyframe(kf, X[kf.index].copy(), carver)
+    for kf in keyframes:  # moved by the frame's shift from their own pose (the closures did not turn the keyframes)
+        if kf.index in moved:
+            _place_keyframe(kf, moved_along(kf.X_WO, a, moved[kf.index]), carver)
     return _model_from(keyframes, cfg.model_voxel)
 
 
