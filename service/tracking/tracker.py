@@ -855,7 +855,8 @@ def _lying_axis(session, X: np.ndarray, tracked: np.ndarray, model: ObjectModel,
     (``_end_extents``), its offset (``lying.axis_end_offsets``) and the running median of the offsets over
     ± ``lie_axis_window`` frames (``lying.axis_end_shift``), or no shift for the stretch. Every frame of the stretch
     moves by its shift (linear between the measured frames) along a in W (translation only,
-    ``resettle.moved_along``), its keyframes with them, and the model is rebuilt. Updates X, keyframes and
+    ``resettle.moved_along``), its keyframes by the same shift from their own poses (the spin closure and the
+    levelling turned the frames, not the keyframes), and the model is rebuilt. Updates X, keyframes and
     carver in place; returns the rebuilt model, or None when nothing moved."""
     from service.tracking.lying import axis_end_offsets, axis_end_shift, lying_frames, lying_geometry, lying_runs
     from service.tracking.resettle import moved_along
