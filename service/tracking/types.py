@@ -367,7 +367,9 @@ class TrackingConfig:
     # lie_axis_short (m). Per frame the running median of the offsets over +-lie_axis_window frames; a stretch is
     # refused when fewer than half its frames count, their offsets spread (interquartile, about the running median)
     # more than lie_axis_spread or the stretch's median is under lie_axis_min_shift. The cylinder's side cannot see a
-    # slide along the axis (docs/tracking-findings.md "A lying bottle's position along its axis")
+    # slide along the axis (docs/tracking-findings.md "A lying bottle's position along its axis"). Off: design bottle
+    # topples 1697 27.44 -> 2.84 mm, 1788 60.49 -> 6.00 mm translation median (1697's surface 3.63 -> 5.37 mm); judge
+    # 1871 14.25 -> 4.84 mm but 1870 7.51 -> 17.93 mm (only the cap end seen, and cut where end_seen says seen)
     lie_axis_ends: bool = False
     lie_axis_short: float = 0.006
     lie_axis_len_tol: float = 0.008
