@@ -369,7 +369,8 @@ class TrackingConfig:
     # more than lie_axis_spread or the stretch's median is under lie_axis_min_shift. The cylinder's side cannot see a
     # slide along the axis (docs/tracking-findings.md "A lying bottle's position along its axis"). Off: design bottle
     # topples 1697 27.44 -> 2.84 mm, 1788 60.49 -> 6.00 mm translation median (1697's surface 3.63 -> 5.37 mm); judge
-    # 1871 14.25 -> 4.84 mm but 1870 7.51 -> 17.93 mm (only the cap end seen, and cut where end_seen says seen)
+    # 1871, 1874 gain (14.25 -> 4.84, 9.76 -> 1.83 mm) but 1870, 1876, 1878 lose 10-19 mm (only the cap end seen, and
+    # cut where end_seen says seen) and 1879 6.6 mm (the ends' shortfalls differ: 0 and 16.7 mm)
     lie_axis_ends: bool = False
     lie_axis_short: float = 0.006
     lie_axis_len_tol: float = 0.008
