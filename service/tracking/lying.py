@@ -317,3 +317,82 @@ def topple_time(theta: float, omega: float, radius: float, height: float, g: flo
     if np.any(w2 <= 0):
         return float(np.inf)
     return float(np.sum(np.diff(th) / np.sqrt(w2)))
+
+
+# ---- a lying body's position along its axis from the ends of its mask (``lie_axis_ends``) -------------------------
+#
+# A body of revolution lying on the table registers to a model that cannot see a slide along its own axis: the side
+# of a cylinder fits the frame's points wherever it is along the axis, and the lying views attached in a fast fall
+# keep the slide the loop made there (development bottle topples 1697, 1788, 1789: 27-60 mm along the axis in every
+# lying frame, docs/tracking-findings.md "A lying bottle's position along its axis"). Its ends are where it is: the
+# base end lies where the table was at frame 0 (the body stood on its base: ẑ_O = a, the base plane at the table's
+# height in O), the cap end where the standing frames saw the top (the extreme of their mask points along a). A lying
+# frame whose mask shows an end (``resettle.end_seen``: nothing nearer the camera beyond it) places the body along a.
+# The extreme of a mask along a falls short of the true end by the edge pixels the depth filter drops and the rounded
+# rim (``short``, each end); with both ends seen the middle is compared and the shortfalls cancel.
+
+def lying_runs(lying: np.ndarray, min_len: int = 5, gap: int = 3) -> list[tuple[int, int]]:
+    """[(start, stop), ...] (stop exclusive): the runs of True in the (N,) bool ``lying`` with gaps of at most ``gap``
+    frames closed, each at least ``min_len`` frames long (the stretches a body lies on the table between falls)."""
+    idx = np.nonzero(np.asarray(lying, bool))[0]
+    if not len(idx):
+        return []
+    runs, s = [], idx[0]
+    for p, q in zip(idx[:-1], idx[1:]):
+        if q - p > gap + 1:
+            runs.append((int(s), int(p) + 1))
+            s = q
+    runs.append((int(s), int(idx[-1]) + 1))
+    return [(a, b) for a, b in runs if b - a >= min_len]
+
+
+def axis_end_offsets(base: float | None, top: float | None, post: np.ndarray, short: float,
+                     len_tol: float = 0.008) -> np.ndarray:
+    """(M,) the offset (m) along a lying body's axis a of each lying frame from the model's ends, NaN where the frame
+    does not count: ``base`` and ``top`` the ends along a in O (the base plane from the table at frame 0, the top from
+    the standing frames; None when unknown), ``post`` (M,2) per lying frame the (lo, hi) extent of its mask along a in
+    O (``resettle.axis_extent``), NaN in a column whose end is not seen (``resettle.end_seen``). With both ends seen
+    (and both known): the middle minus the model's middle, when the length is within ``len_tol`` of the model's
+    length less 2 ``short`` (else an end is cut that the end test passed, and the frame does not count); with one
+    seen, that end minus the model's, less the mask's shortfall ``short`` toward the inside. A frame whose pose sits
+    δ along a from the body's place has its points carried into O at −δ: the offset is −δ, and
+    ``resettle.moved_along(X, a, offset)`` puts it back."""
+    post = np.asarray(post, float).reshape(-1, 2)
+    c = np.full(len(post), np.nan)
+    if len(post) == 0 or (base is None and top is None):
+        return c
+    lo_ok = np.isfinite(post[:, 0]) & (base is not None)
+    hi_ok = np.isfinite(post[:, 1]) & (top is not None)
+    if base is not None and top is not None:
+        both = lo_ok & hi_ok
+        L = post[:, 1] - post[:, 0]
+        good = both & (np.abs(L - (top - base - 2.0 * short)) <= len_tol)
+        c[good] = post[good].sum(1) / 2.0 - (base + top) / 2.0
+        lo_ok &= ~both
+        hi_ok &= ~both
+    if base is not None:
+        c[lo_ok] = post[lo_ok, 0] - base - short
+    if top is not None:
+        c[hi_ok] = post[hi_ok, 1] - top + short
+    return c
+
+
+def axis_end_shift(c: np.ndarray, t: np.ndarray, *, window: float = 15.0, spread_tol: float = 0.004, min_n: int = 5,
+                   min_frac: float = 0.5, min_shift: float = 0.008) -> np.ndarray | None:
+    """(M,) the shift (m) along a lying body's axis of each measured frame of one lying stretch (frame numbers t (M,)),
+    from its offsets c (M,) (``axis_end_offsets``, NaN: not counted): the running median of the counted offsets within
+    ± ``window`` frames (the loop's slide along the axis grows while the body is pushed and rolls: development 1788
+    −65 → −56 mm over 200 frames), at the frames without one the nearest counted value. None (no shift) when fewer
+    than ``min_n`` and ``min_frac`` of the frames count, the counted offsets spread about their running median more
+    than ``spread_tol`` (interquartile range: the ends disagree), or the stretch's median offset is under
+    ``min_shift``."""
+    c, t = np.asarray(c, float), np.asarray(t, float)
+    ok = np.isfinite(c)
+    if ok.sum() < max(min_n, min_frac * len(c)):
+        return None
+    tc, cc = t[ok], c[ok]
+    run = np.array([np.median(cc[np.abs(tc - x) <= window]) for x in tc])
+    q1, q3 = np.quantile(cc - run, [0.25, 0.75])
+    if q3 - q1 > spread_tol or abs(float(np.median(cc))) < min_shift:
+        return None
+    return np.interp(t, tc, run)

@@ -460,6 +460,8 @@ def _track(session, cfg: TrackingConfig, rng: np.random.Generator, progress: Pro
             tilt = _spin_tilt(obs, X, model, spin, cfg)
         if cfg.lie_level:  # a lying body of revolution: axis parallel to the table (service.tracking.lying)
             _level_lying(X, model, spin, session.table_height, cfg, keyframes)
+        if cfg.lie_axis_ends:  # a lying body of revolution moved along its axis onto the ends its mask shows
+            model = _lying_axis(session, X, tracked, model, spin, keyframes, carver, cfg) or model
     X = interpolate_untracked(X, tracked)
     return TrackResult(X, tracked, frac, rmse, model, keyframes, carver, kf_log, n_feat, spin, landings, tilt,
                        lost_log)
@@ -766,6 +768,41 @@ def _end_points(session, j: int, cfg: TrackingConfig, step: int = 2) -> tuple[np
     return P_W, depth, mask
 
 
+def _end_extents(session, X: np.ndarray, frames: list[int], h: np.ndarray, cfg: TrackingConfig,
+                 each: bool = False, standing: bool = False, cache: dict | None = None) -> np.ndarray:
+    """(len(frames), 2): per frame j the extent (lo, hi) along the unit body direction h (3,, in O) of frame j's mask
+    depth points (``_end_points``) carried into O by X[j] (``resettle.axis_extent``); a row of NaN when the frame has
+    fewer than ``min_points`` points or one of its two ends is not seen (``resettle.end_seen``: cut by something
+    nearer the camera beyond it, or leaving the image). With ``each`` only the column of the end not seen is NaN
+    (lo: the end toward −h, hi: toward +h). With ``standing`` (h the up axis of a box on its base) only the top end is
+    tested and lo is the table under the base (``resettle.table_end``: the lower part is dropped with the table
+    clearance or hidden). ``cache`` (frame → ``_end_points``' output), when given, is read and filled so that a frame
+    measured along two directions is read once."""
+    from service.tracking.resettle import axis_extent, end_seen, table_end
+
+    out = np.full((len(frames), 2), np.nan)
+    for k, j in enumerate(frames):
+        pts = cache.get(j) if cache is not None else None
+        if pts is None:
+            pts = _end_points(session, j, cfg)
+            if cache is not None:
+                cache[j] = pts
+        P_W, depth, mask = pts
+        if len(P_W) < cfg.min_points:
+            continue
+        h_W = X[j][:3, :3] @ h
+        if standing:
+            if end_seen(P_W, h_W, depth, mask, session.K, session.X_WC, session.table_height):
+                out[k] = axis_extent(P_W, X[j], h)
+                out[k, 0] = table_end(X[j], h, session.table_height)
+            continue
+        seen = [end_seen(P_W, sgn * h_W, depth, mask, session.K, session.X_WC, session.table_height)
+                for sgn in (-1.0, 1.0)]
+        if all(seen) or (each and any(seen)):
+            out[k] = np.where(seen, axis_extent(P_W, X[j], h), np.nan)
+    return out
+
+
 def _resettle_axis(session, X: np.ndarray, tracked: np.ndarray, keyframes: list[Keyframe],
                    carver: "FreeSpace | None", landings: list, cfg: TrackingConfig, stride: int = 2
                    ) -> ObjectModel | None:
@@ -788,7 +825,7 @@ def _resettle_axis(session, X: np.ndarray, tracked: np.ndarray, keyframes: list[
     middle of two outlines is biased by half the difference of what each loses). Every frame of the stretch then moves by
     the shifts in W (X_WO's translation only), its keyframes with it, and the model is rebuilt. Updates X, keyframes
     and carver in place; returns the rebuilt model, or None when nothing moved."""
-    from service.tracking.resettle import axis_extent, axis_shift, box_face, end_seen, moved_along, table_end
+    from service.tracking.resettle import axis_shift, box_face, moved_along
 
     base_n = X[0][:3, :3].T @ np.array([0.0, 0.0, -1.0])
     moved: list[int] = []
@@ -810,31 +847,18 @@ def _resettle_axis(session, X: np.ndarray, tracked: np.ndarray, keyframes: list[
         if side is None:
             continue  # not a box
         h = side[0]
-        seen: dict[int, tuple] = {}
+        points: dict[int, tuple] = {}  # frame -> _end_points, read once for both directions
 
-        def extents(frames: list[int], d: np.ndarray, standing: bool = False) -> np.ndarray:
-            out = np.full((len(frames), 2), np.nan)
-            for k, j in enumerate(frames):
-                if j not in seen:
-                    seen[j] = _end_points(session, j, cfg)
-                P_W, depth, mask = seen[j]
-                if len(P_W) < cfg.min_points:
-                    continue
-                d_W = X[j][:3, :3] @ d
-                if all(end_seen(P_W, sgn * d_W, depth, mask, session.K, session.X_WC, session.table_height)
-                       for sgn in ((1.0,) if standing else (1.0, -1.0))):
-                    out[k] = axis_extent(P_W, X[j], d)
-                    if standing:
-                        out[k, 0] = table_end(X[j], d, session.table_height)
-            return out
+        def ends(frames: list[int], d: np.ndarray, standing: bool = False) -> np.ndarray:
+            return _end_extents(session, X, frames, d, cfg, standing=standing, cache=points)
 
         stretch = [j for j in range(i, end) if tracked[j]]
         shifts = []
         if cfg.resettle_box_axis:
-            shifts.append((h, axis_shift(extents(ref_frames, h), extents(stretch[::stride], h))))
+            shifts.append((h, axis_shift(ends(ref_frames, h), ends(stretch[::stride], h))))
         if cfg.resettle_box_slide:
             u = -base_n
-            shifts.append((u, axis_shift(extents(ref_frames, u, standing=True), extents(stretch[::stride], u),
+            shifts.append((u, axis_shift(ends(ref_frames, u, standing=True), ends(stretch[::stride], u),
                                          len_short=cfg.resettle_box_slide_short,
                                          min_frac=cfg.resettle_box_slide_frac,
                                          min_shift=cfg.resettle_box_slide_min)))
@@ -851,6 +875,62 @@ def _resettle_axis(session, X: np.ndarray, tracked: np.ndarray, keyframes: list[
     for kf in keyframes:
         if kf.index in moved_set:
             _place_keyframe(kf, X[kf.index].copy(), carver)
+    return _model_from(keyframes, cfg.model_voxel)
+
+
+def _lying_axis(session, X: np.ndarray, tracked: np.ndarray, model: ObjectModel, spin: "SpinResult",
+                keyframes: list[Keyframe], carver: "FreeSpace | None", cfg: TrackingConfig, stride: int = 2
+                ) -> ObjectModel | None:
+    """Every stretch in which a body of revolution that stood on its base at frame 0 lies on the table
+    (``lying.lying_frames`` of ``lying.lying_geometry``, runs of ``lying.lying_runs``) moved along its axis a = ẑ_O so
+    that the ends its mask shows lie at the model's ends (``lying.axis_end_shift``, shortfall ``lie_axis_short``): the
+    base plane where the table was at frame 0, the top at the median extreme along a of the standing frames (every
+    ``stride``-th tracked frame before the first stretch with a within ``lie_level_stand_deg`` of the vertical and its
+    top seen). Per stretch, every ``stride``-th lying frame's extent along a with each end kept only where it is seen
+    (``_end_extents``), its offset (``lying.axis_end_offsets``) and the running median of the offsets over
+    ± ``lie_axis_window`` frames (``lying.axis_end_shift``), or no shift for the stretch. Every frame of the stretch
+    moves by its shift (linear between the measured frames) along a in W (translation only,
+    ``resettle.moved_along``), its keyframes by the same shift from their own poses (the spin closure and the
+    levelling turned the frames, not the keyframes), and the model is rebuilt. Updates X, keyframes and
+    carver in place; returns the rebuilt model, or None when nothing moved."""
+    from service.tracking.lying import axis_end_offsets, axis_end_shift, lying_frames, lying_geometry, lying_runs
+    from service.tracking.resettle import moved_along
+
+    if spin is None or not spin.is_revolution:
+        return None
+    Q_lying = _lying_points(keyframes, cfg) if cfg.lie_level_views and keyframes else None
+    geo = lying_geometry(model.Q, spin.axis_O, cfg.lie_level_stand_deg, Q_lying)
+    if geo is None:
+        return None
+    a, p_O, radius = geo
+    lying = lying_frames(X, a, p_O, radius, session.table_height, lie_deg=cfg.lie_level_deg,
+                         margin=cfg.lie_level_margin) & tracked
+    runs = lying_runs(lying)
+    if not runs:
+        return None
+    base = session.table_height - float(X[0][:3, 3] @ (X[0][:3, :3] @ a))
+    stand = [j for j in range(0, runs[0][0], stride)
+             if tracked[j] and _axis_tilt(X[j], a) <= cfg.lie_level_stand_deg]
+    tops = _end_extents(session, X, stand, a, cfg, each=True)[:, 1]
+    tops = tops[np.isfinite(tops)]
+    top = float(np.median(tops)) if len(tops) >= 3 else None
+    moved: dict[int, float] = {}  # frame -> its shift along a (m)
+    for s, e in runs:
+        frames = [j for j in range(s, e) if lying[j]][::stride]
+        c = axis_end_offsets(base, top, _end_extents(session, X, frames, a, cfg, each=True), cfg.lie_axis_short,
+                             cfg.lie_axis_len_tol)
+        shift = axis_end_shift(c, np.array(frames), window=cfg.lie_axis_window, spread_tol=cfg.lie_axis_spread,
+                               min_shift=cfg.lie_axis_min_shift)
+        if shift is None:
+            continue
+        for j, sh in zip(range(s, e), np.interp(np.arange(s, e), frames, shift)):
+            X[j] = moved_along(X[j], a, float(sh))
+            moved[j] = float(sh)
+    if not moved:
+        return None
+    for kf in keyframes:  # moved by the frame's shift from their own pose (the closures did not turn the keyframes)
+        if kf.index in moved:
+            _place_keyframe(kf, moved_along(kf.X_WO, a, moved[kf.index]), carver)
     return _model_from(keyframes, cfg.model_voxel)
 
 
