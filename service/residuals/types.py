@@ -257,6 +257,15 @@ class ResidualConfig:
     # with release blocks on: the effect's value for rule 10 fitted on each fold's training release blocks alone (the
     # launch blocks' θ_f carries what the effect took up of the struck size); the accepted value is not changed
     release_fit: bool = False
+    # the reported value of an accepted slide effect fitted on the slide alone (docs/residuals.md §4 "Reported value";
+    # docs/residuals-findings.md, "The reported value from the slide alone"): None = off; N = once a slide effect
+    # (``effects.SLIDE_EFFECTS``) is accepted (the decision as without it), its reported value (``effects``, the
+    # candidate's ``params``, the output model) is fitted on the release blocks (N frames after the release, as
+    # ``release_blocks``'s, started from the tracked slide, without the sphere) of all units, on top of the final
+    # refit's corrections and other effects, instead of on the launch blocks; the candidate's held-out error where it
+    # acts after (issue #6's criterion 3) is then at each fold's value fitted on its training release blocks. The fold
+    # models the later rounds are judged on keep their launch-block values. Independent of rule 10. K >= 2 only
+    release_value: int | None = None
 
     def __post_init__(self) -> None:
         self._check_numbers()
@@ -304,6 +313,13 @@ class ResidualConfig:
         if self.release_fit and self.release_blocks is None:
             raise ValueError("ResidualConfig.release_fit needs release_blocks (it sets the value rule 10 judges at; "
                              "with release_blocks None there is no rule 10)")
+        v = self.release_value
+        if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+            raise ValueError(f"ResidualConfig.release_value must be an integer >= 1 (frames after the release) or None, "
+                             f"not {v!r}")
+        if v is not None and isinstance(self.folds, int) and self.folds < 2:
+            raise ValueError("ResidualConfig.release_value needs folds >= 2 (it replaces the final refit's value, "
+                             "which one split does not have)")
         v = self.restitution_threshold_mps
         if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v < np.inf):
             raise ValueError(f"ResidualConfig.restitution_threshold_mps must be a number >= 0 m/s, not {v!r}")
