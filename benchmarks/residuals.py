@@ -538,7 +538,9 @@ def strike(args) -> None:
                                       **({} if args.release_blocks is None
                                          else {"release_blocks": None if args.release_blocks == "off" else args.release_blocks}),
                                       **({} if args.release_value is None
-                                         else {"release_value": None if args.release_value == "off" else args.release_value}))
+                                         else {"release_value": None if args.release_value == "off" else args.release_value}),
+                                      **({} if args.release_value_models is None
+                                         else {"release_value_models": args.release_value_models}))
             model = perturbed_model(ls, **LEARNED_ERRORS) if args.learned_model else perturbed_model(ls)
             if args.true_split:
                 if name:
@@ -725,6 +727,8 @@ def main() -> None:
     st.add_argument("--release-value", type=_int_or_off, default=None, metavar="N",
                     help="ResidualConfig.release_value: an accepted slide effect's reported value fitted on the release "
                          "blocks N frames after the release; the line also gives the launch-block value (off's) from the same run")
+    st.add_argument("--release-value-models", choices=("learned", "all"), default=None,
+                    help="ResidualConfig.release_value_models: the models --release-value acts on")
     st.add_argument("--release-fit", choices=("on", "off"), default=None,
                     help="ResidualConfig.release_fit: rule 10 at the value fitted on the training release blocks")
     st.add_argument("--nuisance-segments", type=int, default=None, metavar="N",

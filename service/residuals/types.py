@@ -93,6 +93,7 @@ SPHERE_DRIVES: tuple[str, ...] = ("lead", "inverse")
 ROBOT_SMOOTH_WEIGHTS: tuple[str, ...] = ("box", "biweight")
 # how the nuisance corrections are refitted for each hypothesis (``ResidualConfig.nuisance_restart``)
 NUISANCE_RESTARTS: tuple[str, ...] = ("off", "joint", "both")
+RELEASE_VALUE_MODELS: tuple[str, ...] = ("learned", "all")  # ResidualConfig.release_value_models
 
 
 @dataclass(frozen=True)
@@ -266,6 +267,10 @@ class ResidualConfig:
     # acts after (issue #6's criterion 3) is then at each fold's value fitted on its training release blocks. The fold
     # models the later rounds are judged on keep their launch-block values. Independent of rule 10. K >= 2 only
     release_value: int | None = None
+    # which models ``release_value`` acts on: "learned" = only when the nuisance corrections are fitted (a model learned
+    # from the session, §3b: the struck size is uncertain and the launch blocks' value takes it up); "all" = also a
+    # catalogue model, whose size is known
+    release_value_models: str = "all"
 
     def __post_init__(self) -> None:
         self._check_numbers()
@@ -320,6 +325,9 @@ class ResidualConfig:
         if v is not None and isinstance(self.folds, int) and self.folds < 2:
             raise ValueError("ResidualConfig.release_value needs folds >= 2 (it replaces the final refit's value, "
                              "which one split does not have)")
+        if self.release_value_models not in RELEASE_VALUE_MODELS:
+            raise ValueError(f"ResidualConfig.release_value_models must be one of {RELEASE_VALUE_MODELS}, "
+                             f"not {self.release_value_models!r}")
         v = self.restitution_threshold_mps
         if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v < np.inf):
             raise ValueError(f"ResidualConfig.restitution_threshold_mps must be a number >= 0 m/s, not {v!r}")

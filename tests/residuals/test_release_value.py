@@ -94,3 +94,10 @@ def test_final_refit_reports_the_release_value_and_keeps_the_launch_refit():
     assert e["launch_params"]["linear_damping"] == pytest.approx(B_LAUNCH, abs=0.01)
     assert e["params"]["linear_damping"] == pytest.approx(B_SLIDE, abs=0.01) and e["release_blocks"] == 6
     assert "release blocks of all units" in rep["notes"]["linear_damping"]
+
+
+def test_config_release_value_models():
+    assert ResidualConfig(release_value_models="learned").release_value_models == "learned"
+    for v in ("none", True, None):
+        with pytest.raises(ValueError, match="release_value_models"):
+            ResidualConfig(release_value_models=v)
