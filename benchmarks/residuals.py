@@ -540,7 +540,9 @@ def strike(args) -> None:
                                       **({} if args.release_value is None
                                          else {"release_value": None if args.release_value == "off" else args.release_value}),
                                       **({} if args.release_value_models is None
-                                         else {"release_value_models": args.release_value_models}))
+                                         else {"release_value_models": args.release_value_models}),
+                                      **({} if args.release_value_degree is None
+                                         else {"release_value_degree": args.release_value_degree}))
             model = perturbed_model(ls, **LEARNED_ERRORS) if args.learned_model else perturbed_model(ls)
             if args.true_split:
                 if name:
@@ -729,6 +731,8 @@ def main() -> None:
                          "blocks N frames after the release; the line also gives the launch-block value (off's) from the same run")
     st.add_argument("--release-value-models", choices=("learned", "all"), default=None,
                     help="ResidualConfig.release_value_models: the models --release-value acts on")
+    st.add_argument("--release-value-degree", type=int, choices=(2, 3), default=None,
+                    help="ResidualConfig.release_value_degree: the release blocks' start-state polynomial (3: cubic)")
     st.add_argument("--release-fit", choices=("on", "off"), default=None,
                     help="ResidualConfig.release_fit: rule 10 at the value fitted on the training release blocks")
     st.add_argument("--nuisance-segments", type=int, default=None, metavar="N",

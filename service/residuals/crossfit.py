@@ -256,7 +256,8 @@ def fit_on_release(eff, guess, model: ObjectModel, base_effects: dict, chosen: d
     release blocks used), θ None with fewer than 2 release blocks where the effect acts."""
     from service.residuals.loop import _acts_on, _fit, release_segment
 
-    tr = [r for r in (release_segment(sg, gap, cfg) for sg in launch_blocks) if r is not None and _acts_on(r, eff)]
+    tr = [r for r in (release_segment(sg, gap, cfg, cfg.release_value_degree) for sg in launch_blocks)
+          if r is not None and _acts_on(r, eff)]
     if len(tr) > cap:
         sub = np.random.default_rng(cfg.seed + 4244).choice(len(tr), cap, replace=False)
         tr = [tr[j] for j in sorted(sub)]

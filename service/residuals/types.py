@@ -271,6 +271,9 @@ class ResidualConfig:
     # from the session, §3b: the struck size is uncertain and the launch blocks' value takes it up); "all" = also a
     # catalogue model, whose size is known
     release_value_models: str = "all"
+    # the degree of the model-free start state of ``release_value``'s release blocks (``loop.start_state``): 2 =
+    # rule 10's quadratic; 3 = a cubic (>= 6 frames), whose velocity the jerk of a damped slide does not bias
+    release_value_degree: int = 2
 
     def __post_init__(self) -> None:
         self._check_numbers()
@@ -325,6 +328,8 @@ class ResidualConfig:
         if v is not None and isinstance(self.folds, int) and self.folds < 2:
             raise ValueError("ResidualConfig.release_value needs folds >= 2 (it replaces the final refit's value, "
                              "which one split does not have)")
+        if self.release_value_degree not in (2, 3) or isinstance(self.release_value_degree, bool):
+            raise ValueError(f"ResidualConfig.release_value_degree must be 2 or 3, not {self.release_value_degree!r}")
         if self.release_value_models not in RELEASE_VALUE_MODELS:
             raise ValueError(f"ResidualConfig.release_value_models must be one of {RELEASE_VALUE_MODELS}, "
                              f"not {self.release_value_models!r}")

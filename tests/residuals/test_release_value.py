@@ -101,3 +101,20 @@ def test_config_release_value_models():
     for v in ("none", True, None):
         with pytest.raises(ValueError, match="release_value_models"):
             ResidualConfig(release_value_models=v)
+
+
+def test_cubic_start_state_is_not_biased_by_the_jerk_of_a_damped_slide():
+    from service.residuals.loop import start_state
+    from service.transforms import make_X
+
+    t = np.arange(9) / 30.0
+    v0, a0, j = 0.3, -2.1, 4.0  # a damped slide: its deceleration falls as it slows (positive jerk)
+    x = v0 * t + 0.5 * a0 * t**2 + j / 6.0 * t**3
+    X = np.array([make_X(np.eye(3), np.array([xi, 0.0, 0.05])) for xi in x])
+    h = 1.0 / 30.0 / 17
+    _, v2, _ = start_state(t, X, 0, h)
+    _, v3, _ = start_state(t, X, 0, h, degree=3)
+    assert v2[0] < v0 - 0.02  # the quadratic's one-sided velocity is ≈ 9 % low
+    assert v3[0] == pytest.approx(v0 - 0.5 * h * a0 + 0.125 * h * h * j, abs=1e-6)  # the cubic's derivative at −h/2
+    X4 = X[:5]  # fewer than 6 frames: the quadratic
+    assert np.allclose(start_state(t[:5], X4, 0, h, degree=3)[1], start_state(t[:5], X4, 0, h)[1])
