@@ -542,7 +542,9 @@ def strike(args) -> None:
                                       **({} if args.release_value_models is None
                                          else {"release_value_models": args.release_value_models}),
                                       **({} if args.release_value_degree is None
-                                         else {"release_value_degree": args.release_value_degree}))
+                                         else {"release_value_degree": args.release_value_degree}),
+                                      **({} if args.release_value_effects is None
+                                         else {"release_value_effects": tuple(args.release_value_effects)}))
             model = perturbed_model(ls, **LEARNED_ERRORS) if args.learned_model else perturbed_model(ls)
             if args.true_split:
                 if name:
@@ -733,6 +735,9 @@ def main() -> None:
                     help="ResidualConfig.release_value_models: the models --release-value acts on")
     st.add_argument("--release-value-degree", type=int, choices=(2, 3), default=None,
                     help="ResidualConfig.release_value_degree: the release blocks' start-state polynomial (3: cubic)")
+    st.add_argument("--release-value-effects", nargs="+", default=None, metavar="EFFECT",
+                    choices=("linear_damping", "angular_damping", "friction_table", "table_tilt"),
+                    help="ResidualConfig.release_value_effects: the slide effects --release-value acts on")
     st.add_argument("--release-fit", choices=("on", "off"), default=None,
                     help="ResidualConfig.release_fit: rule 10 at the value fitted on the training release blocks")
     st.add_argument("--nuisance-segments", type=int, default=None, metavar="N",

@@ -577,6 +577,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
         ok, gain, cand, per, theta_rep = best
         chosen_rep[cand.effect] = theta_rep
         if (cfg.release_value is not None and kfold and cand.effect in SLIDE_EFFECTS
+                and cand.effect in cfg.release_value_effects
                 and (cfg.release_value_models == "all" or nuis_names)):
             report((rnd + 1) / max(n_rounds, 1) * 0.9, f"{cand.effect}: its value on the folds' release blocks")
             rv = release_value_folds(REGISTRY[cand.effect], per, folds, input_model, input_effects, ev, cfg)

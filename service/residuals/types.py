@@ -274,6 +274,8 @@ class ResidualConfig:
     # the degree of the model-free start state of ``release_value``'s release blocks (``loop.start_state``): 2 =
     # rule 10's quadratic; 3 = a cubic (>= 6 frames), whose velocity the jerk of a damped slide does not bias
     release_value_degree: int = 2
+    # the slide effects (of ``effects.SLIDE_EFFECTS``) whose reported value ``release_value`` fits on the release blocks
+    release_value_effects: tuple[str, ...] = ("linear_damping", "angular_damping", "friction_table", "table_tilt")
 
     def __post_init__(self) -> None:
         self._check_numbers()
@@ -328,6 +330,10 @@ class ResidualConfig:
         if v is not None and isinstance(self.folds, int) and self.folds < 2:
             raise ValueError("ResidualConfig.release_value needs folds >= 2 (it replaces the final refit's value, "
                              "which one split does not have)")
+        slide = ("linear_damping", "angular_damping", "friction_table", "table_tilt")  # effects.SLIDE_EFFECTS
+        if not (isinstance(self.release_value_effects, tuple) and all(e in slide for e in self.release_value_effects)):
+            raise ValueError(f"ResidualConfig.release_value_effects must be a tuple of slide effects {slide}, "
+                             f"not {self.release_value_effects!r}")
         if self.release_value_degree not in (2, 3) or isinstance(self.release_value_degree, bool):
             raise ValueError(f"ResidualConfig.release_value_degree must be 2 or 3, not {self.release_value_degree!r}")
         if self.release_value_models not in RELEASE_VALUE_MODELS:

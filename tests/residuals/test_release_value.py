@@ -101,6 +101,13 @@ def test_config_release_value_models():
     for v in ("none", True, None):
         with pytest.raises(ValueError, match="release_value_models"):
             ResidualConfig(release_value_models=v)
+    assert ResidualConfig(release_value_effects=("linear_damping",)).release_value_effects == ("linear_damping",)
+    for v in (("restitution",), ["linear_damping"], "linear_damping"):
+        with pytest.raises(ValueError, match="release_value_effects"):
+            ResidualConfig(release_value_effects=v)
+    for v in (1, 4, True):
+        with pytest.raises(ValueError, match="release_value_degree"):
+            ResidualConfig(release_value_degree=v)
 
 
 def test_cubic_start_state_is_not_biased_by_the_jerk_of_a_damped_slide():
