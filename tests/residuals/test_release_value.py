@@ -1,7 +1,7 @@
 """The reported value of an accepted slide effect fitted on the slide alone (``ResidualConfig.release_value``,
 docs/residuals.md §4 "Reported value"): the final refit's value and the held-out error where the effect acts at each
 fold's value fitted on its training release blocks (``crossfit.fit_on_release``, ``release_value_folds``,
-``final_refit``). Off by default; the decision is not changed."""
+``final_refit``). On by default for learned models' linear damping; the decision is not changed."""
 
 import dataclasses
 
@@ -38,13 +38,15 @@ EFF = REGISTRY["linear_damping"]
 
 
 def test_config_release_value():
-    assert ResidualConfig().release_value is None  # off by default
+    cfg = ResidualConfig()  # on by default, as judged: gap 1, the cubic start, learned models, the linear damping
+    assert (cfg.release_value, cfg.release_value_degree, cfg.release_value_models, cfg.release_value_effects) == (
+        1, 3, "learned", ("linear_damping",))
+    assert ResidualConfig(release_value=None).release_value is None
     assert ResidualConfig(release_value=2).release_value == 2
     for v in (0, -1, 1.5, True, "1"):
         with pytest.raises(ValueError, match="release_value"):
             ResidualConfig(release_value=v)
-    with pytest.raises(ValueError, match="release_value needs folds >= 2"):
-        ResidualConfig(release_value=1, folds=1)
+    assert ResidualConfig(folds=1).release_value == 1  # one split: no final refit, nothing to do
 
 
 def test_fit_on_release_takes_the_slide_value_not_the_launch_value():
