@@ -513,7 +513,7 @@ def strike(args) -> None:
             lab_sim.STRIKE_CONTACT_PROCESSING_M = lab_sim.STRIKE_TOUCH_PROCESSING_M  # solved from the touch on
         if args.lab_strike_contact == "velocity":  # and no push-out of its overlap (docs/residuals-findings.md, "The launch kick")
             lab_sim.STRIKE_CONTACT_STIFFNESS_DAMPING = lab_sim.STRIKE_VELOCITY_ONLY
-    n_ok = n = 0
+    n_ok = n = n_off_ok = 0
     for case in args.cases:
         hidden, name, key, truth, cands = STRIKE_CASES[case]
         if args.candidates:  # the same sessions against another candidate set (e.g. with friction_robot among them)
@@ -537,7 +537,15 @@ def strike(args) -> None:
                                       **({} if args.nuisance_segments is None else {"max_nuisance_segments": args.nuisance_segments}),
                                       **({} if args.release_fit is None else {"release_fit": args.release_fit == "on"}),
                                       **({} if args.release_blocks is None
-                                         else {"release_blocks": None if args.release_blocks == "off" else args.release_blocks}))
+                                         else {"release_blocks": None if args.release_blocks == "off" else args.release_blocks}),
+                                      **({} if args.release_value is None
+                                         else {"release_value": None if args.release_value == "off" else args.release_value}),
+                                      **({} if args.release_value_models is None
+                                         else {"release_value_models": args.release_value_models}),
+                                      **({} if args.release_value_degree is None
+                                         else {"release_value_degree": args.release_value_degree}),
+                                      **({} if args.release_value_effects is None
+                                         else {"release_value_effects": tuple(args.release_value_effects)}))
             model = perturbed_model(ls, **LEARNED_ERRORS) if args.learned_model else perturbed_model(ls)
             if args.true_split:
                 if name:
@@ -597,6 +605,18 @@ def strike(args) -> None:
                     else:
                         fm_rel = abs(float(fmv[0]) - truth) / abs(truth - null)
                     fm_txt = " [fold mean " + ", ".join(f"{v:.4g}" for v in fmv) + f" (error {fm_rel:.0%})]"
+                lv = out.by_mode.get("refit", {}).get("effects", {}).get(name, {})
+                if "launch_params" in lv and not isinstance(truth, tuple):  # --release-value: off's figures, same run
+                    l_fv = float(list(lv["launch_params"].values())[0])
+                    l_rel = abs(l_fv - truth) / abs(truth - null)
+                    l_r = _ratio(lv["launch_heldout_acting_after"], c.heldout_acting_before) if "launch_heldout_acting_after" in lv else r_act
+                    l_ok = right and l_rel <= 0.25 and l_r <= 0.6
+                    n_off_ok += l_ok
+                    rf = ", ".join(f"{float(list(v.values())[0]):.4g}" for v in lv.get("release_folds", []))
+                    fm_txt += (f" [release value: folds ({rf}), {lv.get('release_blocks', '?')} release blocks; "
+                               f"launch-block refit {l_fv:.4g} (error {l_rel:.0%}), {l_r:.3f}x: off {'PASS' if l_ok else 'FAIL'}]")
+                elif args.release_value not in (None, "off"):
+                    n_off_ok += ok
                 line += (f"; true {truth}, fitted {fs} (error {rel:.0%}){fm_txt}; "
                          + (_acting_txt(c) if np.isfinite(c.heldout_acting_before) else "its frames not judged")
                          + f"; earlier criterion (free-sliding position <= 0.6x): "
@@ -611,6 +631,8 @@ def strike(args) -> None:
                      f"{resource.getrusage(resource.RUSAGE_SELF).ru_utime - c0:.0f} s cpu)")
             n += 1
             n_ok += ok
+            if args.release_value not in (None, "off") and not (name and not as_correction):
+                n_off_ok += ok  # no slide-effect value to change: off's outcome is the same
             print(line, flush=True)
             if args.folds >= 2:
                 _print_fold_agreement(out)
@@ -621,7 +643,8 @@ def strike(args) -> None:
     if args.true_split:
         return
     print(f"strike cases passing the issue #6 criteria (right effect alone, within 25 %, held-out error where it acts "
-          f"<= 0.6x; plain: nothing): {n_ok}/{n}")
+          f"<= 0.6x; plain: nothing): {n_ok}/{n}"
+          + (f" (with the launch-block values, release value off: {n_off_ok}/{n})" if args.release_value not in (None, "off") else ""))
 
 
 def main() -> None:
@@ -706,6 +729,16 @@ def main() -> None:
                     help="ResidualConfig.release_blocks: rule 10, a slide effect must also improve the held-out release "
                          "blocks, started N frames after the sphere stopped pushing (docs/residuals.md §4; 'off' or "
                          "absent: the config's default, off)")
+    st.add_argument("--release-value", type=_int_or_off, default=None, metavar="N",
+                    help="ResidualConfig.release_value: an accepted slide effect's reported value fitted on the release "
+                         "blocks N frames after the release; the line also gives the launch-block value (off's) from the same run")
+    st.add_argument("--release-value-models", choices=("learned", "all"), default=None,
+                    help="ResidualConfig.release_value_models: the models --release-value acts on")
+    st.add_argument("--release-value-degree", type=int, choices=(2, 3), default=None,
+                    help="ResidualConfig.release_value_degree: the release blocks' start-state polynomial (3: cubic)")
+    st.add_argument("--release-value-effects", nargs="+", default=None, metavar="EFFECT",
+                    choices=("linear_damping", "angular_damping", "friction_table", "table_tilt"),
+                    help="ResidualConfig.release_value_effects: the slide effects --release-value acts on")
     st.add_argument("--release-fit", choices=("on", "off"), default=None,
                     help="ResidualConfig.release_fit: rule 10 at the value fitted on the training release blocks")
     st.add_argument("--nuisance-segments", type=int, default=None, metavar="N",

@@ -232,19 +232,71 @@ def lookalike_refutation(round_res: list[tuple], folds: list, cfg: ResidualConfi
     return _judge_lookalikes(round_res, final, history, rnd, judge)
 
 
-def release_blocks(fd, cfg: ResidualConfig, train: bool = False) -> list:
-    """The release blocks (``loop.release_segment``, ``cfg.release_blocks`` frames after the release) of fold ``fd``'s
-    held-out launch blocks (``train``: of its training launch blocks), with the fold's modes; cut once per fold and
-    kept on it."""
+def release_blocks(fd, cfg: ResidualConfig, train: bool = False, gap: int | None = None) -> list:
+    """The release blocks (``loop.release_segment``, ``gap`` frames after the release; None: ``cfg.release_blocks``)
+    of fold ``fd``'s held-out launch blocks (``train``: of its training launch blocks), with the fold's modes; cut
+    once per fold and gap and kept on it."""
     from service.residuals.loop import release_segment
 
+    gap = cfg.release_blocks if gap is None else gap
     if fd.release is None:
         fd.release = {}
-    key = "train" if train else "held"
+    key = ("train" if train else "held") if gap == cfg.release_blocks else ("train" if train else "held", gap)
     if key not in fd.release:
-        fd.release[key] = [r for r in (release_segment(sg, cfg.release_blocks, cfg)
+        fd.release[key] = [r for r in (release_segment(sg, gap, cfg)
                                        for sg in (fd.train if train else fd.held)) if r is not None]
     return fd.release[key]
+
+
+def fit_on_release(eff, guess, model: ObjectModel, base_effects: dict, chosen: dict, ev, launch_blocks: list,
+                   gap: int, cfg: ResidualConfig, cap: int) -> tuple[tuple | None, int]:
+    """``ResidualConfig.release_value``: the effect's value fitted (``loop._fit``, on its own frames) on the release
+    blocks (``loop.release_segment``, ``gap`` frames after the release) of ``launch_blocks``, on top of ``model`` /
+    ``base_effects`` and the other effects ``chosen``; at most ``cap`` blocks (a seeded draw). Returns (θ, number of
+    release blocks used), θ None with fewer than 2 release blocks where the effect acts."""
+    from service.residuals.loop import _acts_on, _fit, release_segment
+
+    tr = [r for r in (release_segment(sg, gap, cfg, cfg.release_value_degree) for sg in launch_blocks)
+          if r is not None and _acts_on(r, eff)]
+    if len(tr) > cap:
+        sub = np.random.default_rng(cfg.seed + 4244).choice(len(tr), cap, replace=False)
+        tr = [tr[j] for j in sorted(sub)]
+    if len(tr) < 2:
+        return None, len(tr)
+    theta, _ = _fit(eff, guess, model, base_effects, chosen, ev, tr, cfg)
+    return eff.clip(theta), len(tr)
+
+
+def release_value_folds(eff, per: list, folds: list, input_model: ObjectModel, input_effects: dict, ev,
+                        cfg: ResidualConfig) -> dict:
+    """``ResidualConfig.release_value``, for an accepted slide effect: each fold's value fitted on its training release
+    blocks (``fit_on_release``, on the fold's model as accepted: its corrections, refitted with the effect when they
+    were, and its earlier effects), and the held-out error where the effect acts (issue #6's criterion 3: its
+    component on its frames of the held-out blocks where it acts, per block, then the mean) at those values. A fold
+    with fewer than 2 release blocks keeps its launch-block value. ``per`` holds each fold's figures of the
+    candidate's round (``theta``, ``nuis``, ``ho_idx``, ``ho_masks``). The fold models are not changed."""
+    from service.residuals.loop import reduce_blocks
+
+    vals, acting, n_rel, kept = [], [], [], []
+    for f, (p, fd) in enumerate(zip(per, folds)):
+        if p["nuis"]:
+            m_c, fix_sim = apply_effects(input_model, p["nuis"])
+            b_c = {**input_effects, **fix_sim}
+        else:
+            m_c, b_c = fd.model, fd.base_effects
+        theta, n = fit_on_release(eff, p["theta"], m_c, b_c, fd.chosen, ev, fd.train, cfg.release_value, cfg,
+                                  cfg.max_train_segments)
+        n_rel.append(n)
+        if theta is None:
+            theta = tuple(p["theta"])
+            kept.append(f + 1)
+        vals.append(tuple(float(v) for v in theta))
+        m_a, s_a = apply_effects(m_c, {**fd.chosen, eff.name: theta})
+        held = [fd.held[i] for i in p["ho_idx"]]
+        acting.append(reduce_blocks(ev.frame_split(m_a, {**b_c, **s_a}, held), p["ho_masks"], eff.component))
+    acting = np.concatenate(acting) if acting else np.zeros(0)
+    return {"folds": vals, "fold_mean": eff.clip(tuple(np.mean(np.array(vals, float), 0))), "release_blocks": n_rel,
+            "launch_value_kept": kept, "heldout_acting_after": float(np.nanmean(acting)) if len(acting) else float("nan")}
 
 
 def release_value(eff, fd, cfg: ResidualConfig, ev, guess) -> tuple:
@@ -401,6 +453,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
 
     final: dict[str, EffectCandidate] = {}
     chosen_rep: dict[str, tuple] = {}
+    release_rep: dict[str, dict] = {}  # ``release_value``: per accepted slide effect, its release-block figures
     history: list[dict] = []
     remaining = list(names)
     n_rounds = min(cfg.max_effects, len(names))
@@ -442,7 +495,7 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
                 m_after, s_after = apply_effects(fd.model, {**fd.chosen, name: theta})
                 after_frames = ev.frame_split(m_after, {**fd.base_effects, **s_after}, fd.held)
                 per.append({"theta": theta, "e_train": e_train, "train_before": train_before, "tr_masks": tr_masks,
-                            "ho_masks": ho_masks, "after_frames": after_frames, "nuis": fd.nuis_fix, "refit": False,
+                            "ho_masks": ho_masks, "ho_idx": ho_idx[f], "after_frames": after_frames, "nuis": fd.nuis_fix, "refit": False,
                             "after_model": (m_after, {**fd.base_effects, **s_after})})
 
             def gather():
@@ -523,6 +576,14 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
             break
         ok, gain, cand, per, theta_rep = best
         chosen_rep[cand.effect] = theta_rep
+        if (cfg.release_value is not None and kfold and cand.effect in SLIDE_EFFECTS
+                and cand.effect in cfg.release_value_effects
+                and (cfg.release_value_models == "all" or nuis_names)):
+            report((rnd + 1) / max(n_rounds, 1) * 0.9, f"{cand.effect}: its value on the folds' release blocks")
+            rv = release_value_folds(REGISTRY[cand.effect], per, folds, input_model, input_effects, ev, cfg)
+            rv["heldout_acting_before"] = final[cand.effect].heldout_acting_before
+            rv["heldout_acting_after_launch"] = final[cand.effect].heldout_acting_after
+            release_rep[cand.effect] = rv
         remaining.remove(cand.effect)
         for fd, p in zip(folds, per):
             fd.chosen[cand.effect] = p["theta"]
@@ -537,11 +598,23 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
     refit_report: dict = {}
     if chosen_rep and kfold:  # the decision is the cross-fitted one; the reported value is one more fit on all units
         report(0.9, f"refitting the accepted effects {list(chosen_rep)} on all units")
-        refit, refit_report = final_refit(inputs, cfg, input_model, chosen_rep, nuis_names, stats, segs, ev)
+        refit, refit_report = final_refit(inputs, cfg, input_model, chosen_rep, nuis_names, stats, segs, ev,
+                                          {n: r["fold_mean"] for n, r in release_rep.items()})
         for name, theta in refit.items():
             c = final[name]
+            extra = {}
+            if name in release_rep:  # the after model carries the release value: criterion 3 at the folds' release values
+                rv = release_rep[name]
+                extra["heldout_acting_after"] = rv["heldout_acting_after"]
+                refit_report["effects"].setdefault(name, {})["release_folds"] = [
+                    {k: float(v) for k, v in zip(REGISTRY[name].params, th)} for th in rv["folds"]]
+                refit_report["effects"][name].update(
+                    release_heldout_acting_before=rv["heldout_acting_before"],
+                    release_heldout_acting_after=rv["heldout_acting_after"],
+                    launch_heldout_acting_after=rv["heldout_acting_after_launch"],
+                    release_blocks_folds=rv["release_blocks"], launch_value_kept_folds=rv["launch_value_kept"])
             final[name] = dataclasses.replace(c, params={k: float(v) for k, v in zip(REGISTRY[name].params, theta)},
-                                              reason=c.reason + "; " + refit_report["notes"][name])
+                                              reason=c.reason + "; " + refit_report["notes"][name], **extra)
         fold_mean = dict(chosen_rep)
         chosen_rep = dict(refit)
         refit_report["fold_mean"] = _flat(fold_mean)
@@ -602,7 +675,8 @@ def crossfit(inputs: ResidualInputs, cfg: ResidualConfig, model: ObjectModel, na
 
 
 def final_refit(inputs: ResidualInputs, cfg: ResidualConfig, input_model: ObjectModel, chosen: dict[str, tuple],
-                nuis_names: list[str], stats: dict, segs: list, ev) -> tuple[dict[str, tuple], dict]:
+                nuis_names: list[str], stats: dict, segs: list, ev,
+                release: dict[str, tuple] | None = None) -> tuple[dict[str, tuple], dict]:
     """The accepted effects' parameters fitted once more on all units (cross-validation decides, a final fit on all
     the data gives the value): the fold values each saw the training blocks of K − 1 folds only, capped at
     ``max_train_segments``; here every unit is in the pool and the cap is K × ``max_train_segments`` (the blocks
@@ -613,7 +687,13 @@ def final_refit(inputs: ResidualInputs, cfg: ResidualConfig, input_model: Object
     ``_fit`` (guess: its fold mean) on its own frames of the blocks where it acts, on top of the other accepted
     effects (already refitted ones at their new value, the others at their fold mean: one Gauss–Seidel sweep, so
     the values are fitted jointly) and refitted jointly with the corrections (``_refine_joint``) when there are
-    corrections. Returns ({name: θ} in the order of ``chosen``, report)."""
+    corrections. Returns ({name: θ} in the order of ``chosen``, report).
+
+    ``release`` (``ResidualConfig.release_value``): the accepted slide effects whose reported value is then fitted on
+    the release blocks of all units instead (``fit_on_release``, guess: the folds' release-value mean), after the
+    sweep above, on its corrections and the other effects at their refitted values (the corrections are not refitted:
+    what the struck size does is in the release blocks' start states); the launch-block refit is kept in the report
+    (``effects[name]["launch_params"]``)."""
     from service.residuals.loop import _acts_on, _fit, _fit_nuisance, _refine_joint
 
     K = cfg.folds
@@ -673,6 +753,23 @@ def final_refit(inputs: ResidualInputs, cfg: ResidualConfig, input_model: Object
         rep["effects"][name] = {"params": {k: float(v) for k, v in zip(eff.params, refit[name])},
                                 "fold_mean": {k: float(v) for k, v in zip(eff.params, theta_mean)},
                                 "train_blocks": len(tr), "train_error_fit": float(e_train)}
+    for name, guess in (release or {}).items():
+        eff = REGISTRY[name]
+        others = {n: th for n, th in refit.items() if n != name}
+        launch = refit[name]
+        theta, n_rel = fit_on_release(eff, guess, model, base_effects, others, ev, pool, cfg.release_value, cfg,
+                                      K * cfg.max_train_segments)
+        if theta is None:
+            rep["notes"][name] += f"; release blocks: {n_rel}, the launch-block refit kept"
+        else:
+            refit[name] = theta
+            rep["notes"][name] += ("; value fitted on the release blocks of all units (" + ", ".join(f"{v:.4g}" for v in theta)
+                                   + f", {n_rel} blocks; folds' release values mean ("
+                                   + ", ".join(f"{v:.4g}" for v in guess) + "))")
+        rep["effects"].setdefault(name, {}).update(params={k: float(v) for k, v in zip(eff.params, refit[name])},
+                                    launch_params={k: float(v) for k, v in zip(eff.params, launch)},
+                                    release_fold_mean={k: float(v) for k, v in zip(eff.params, guess)},
+                                    release_blocks=n_rel)
     rep["corrections"] = _flat(nuis_fix)
     return {n: refit[n] for n in chosen}, rep
 

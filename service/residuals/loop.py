@@ -193,24 +193,29 @@ def _check(inputs: ResidualInputs) -> None:
         raise InvalidInput("robot", "needs one robot path (or None) per trajectory")
 
 
-def start_state(t: np.ndarray, X: np.ndarray, at: int, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def start_state(t: np.ndarray, X: np.ndarray, at: int, h: float, degree: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Start pose and backward-difference velocities at frame ``at`` of a short window (t, X).
 
     Positions and rotation vectors r = Log(R_atᵀ R) are fitted by quadratics in time (lines below 4
     frames). Semi-implicit Euler with step h started with v₀ follows p(τ) = p₀ + (v₀ + a h/2) τ + a τ²/2,
-    so v₀ is the fitted curve's derivative at τ = −h/2 (likewise ω₀ for r).
+    so v₀ is the fitted curve's derivative at τ = −h/2 (likewise ω₀ for r). ``degree`` 3: cubics (with >= 6
+    frames), for a one-sided window over a motion whose deceleration changes (a damped slide: its velocity from a
+    quadratic is biased by the jerk, ``release_segment``); the derivative at −h/2 includes the cubic's term.
     """
     k = len(t)
     tau = t - t[at]
-    A = np.stack([np.ones(k), tau, 0.5 * tau**2], 1) if k >= 4 else np.stack([np.ones(k), tau], 1)
+    cols = [np.ones(k), tau] + ([0.5 * tau**2] if k >= 4 else []) + ([tau**3 / 6.0] if degree >= 3 and k >= 6 else [])
+    A = np.stack(cols, 1)
     cp, *_ = np.linalg.lstsq(A, X[:, :3, 3], rcond=None)
     R_ref = X[at, :3, :3]
     r = quat_to_rotvec(mat_to_quat(np.swapaxes(R_ref, 0, 1)[None] @ X[:, :3, :3]))
     cr, *_ = np.linalg.lstsq(A, r, rcond=None)
     acc_p = cp[2] if len(cp) > 2 else 0.0
     acc_r = cr[2] if len(cr) > 2 else 0.0
+    jerk_p = 0.125 * h * h * cp[3] if len(cp) > 3 else 0.0
+    jerk_r = 0.125 * h * h * cr[3] if len(cr) > 3 else 0.0
     X0 = make_X(R_ref @ so3_exp(cr[0]), cp[0])
-    return X0, cp[1] - 0.5 * h * acc_p, cr[1] - 0.5 * h * acc_r
+    return X0, cp[1] - 0.5 * h * acc_p + jerk_p, cr[1] - 0.5 * h * acc_r + jerk_r
 
 
 def _fit_window_ok(mode: np.ndarray) -> bool:
@@ -389,7 +394,7 @@ def release_frame(seg: Segment) -> int | None:
     return int(idx[-1]) if len(idx) else int(np.flatnonzero(on)[0])
 
 
-def release_segment(seg: Segment, gap: int, cfg: ResidualConfig) -> Segment | None:
+def release_segment(seg: Segment, gap: int, cfg: ResidualConfig, degree: int = 2) -> Segment | None:
     """The release block of a launch block: the frames from ``gap`` frames after its release (``release_frame``) to
     its end, started from the tracked state there; None when it is not a launch block, has no robot contact, or no
     usable start.
@@ -420,7 +425,7 @@ def release_segment(seg: Segment, gap: int, cfg: ResidualConfig) -> Segment | No
         return None
     dt = float(np.median(np.diff(seg.t[r:w1])))
     h = dt / max(1, math.ceil(dt / cfg.sim_substep_s - 1e-9))
-    X0, v0, w0 = start_state(seg.t[r:w1], seg.X_obs[r:w1], 0, h)
+    X0, v0, w0 = start_state(seg.t[r:w1], seg.X_obs[r:w1], 0, h, degree)
     return Segment(seg.traj, seg.start + r, seg.stop, seg.t[r:], seg.X_obs[r:], seg.tracked[r:], seg.mode[r:], X0, v0,
                    w0, None, False, False)
 

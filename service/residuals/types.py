@@ -93,6 +93,7 @@ SPHERE_DRIVES: tuple[str, ...] = ("lead", "inverse")
 ROBOT_SMOOTH_WEIGHTS: tuple[str, ...] = ("box", "biweight")
 # how the nuisance corrections are refitted for each hypothesis (``ResidualConfig.nuisance_restart``)
 NUISANCE_RESTARTS: tuple[str, ...] = ("off", "joint", "both")
+RELEASE_VALUE_MODELS: tuple[str, ...] = ("learned", "all")  # ResidualConfig.release_value_models
 
 
 @dataclass(frozen=True)
@@ -257,6 +258,30 @@ class ResidualConfig:
     # with release blocks on: the effect's value for rule 10 fitted on each fold's training release blocks alone (the
     # launch blocks' θ_f carries what the effect took up of the struck size); the accepted value is not changed
     release_fit: bool = False
+    # the reported value of an accepted slide effect fitted on the slide alone (docs/residuals.md §4 "Reported value";
+    # docs/residuals-findings.md, "The reported value from the slide alone"): None = off; N (default 1: on by the
+    # rule written before the judge seeds 841-844, where 2 of 4 learned damping cells met issue #6's criteria with it
+    # and none without; the design cells 832 and 838 did not support it) = once a slide effect
+    # (``effects.SLIDE_EFFECTS``) is accepted (the decision as without it), its reported value (``effects``, the
+    # candidate's ``params``, the output model) is fitted on the release blocks (N frames after the release, as
+    # ``release_blocks``'s, started from the tracked slide, without the sphere) of all units, on top of the final
+    # refit's corrections and other effects, instead of on the launch blocks; the candidate's held-out error where it
+    # acts after (issue #6's criterion 3) is then at each fold's value fitted on its training release blocks. The fold
+    # models the later rounds are judged on keep their launch-block values. Independent of rule 10. K >= 2 only (with
+    # one split there is no final refit and it does nothing)
+    release_value: int | None = 1
+    # which models ``release_value`` acts on: "learned" = only when the nuisance corrections are fitted (a model learned
+    # from the session, §3b: the struck size is uncertain and the launch blocks' value takes it up); "all" = also a
+    # catalogue model, whose size is known (there the launch value was right on 751-753 and criterion 3 worse with
+    # the release value on all three)
+    release_value_models: str = "learned"
+    # the degree of the model-free start state of ``release_value``'s release blocks (``loop.start_state``): 2 =
+    # rule 10's quadratic (its damping optimum on the catalogue model's release blocks 1.18 /s for 2.0); 3 = a cubic
+    # (>= 6 frames), whose velocity the jerk of a damped slide does not bias (optimum 1.92 /s, the launch blocks')
+    release_value_degree: int = 3
+    # the slide effects (of ``effects.SLIDE_EFFECTS``) whose reported value ``release_value`` fits on the release blocks
+    # (the table friction, angular damping and tilt were not measured with it)
+    release_value_effects: tuple[str, ...] = ("linear_damping",)
 
     def __post_init__(self) -> None:
         self._check_numbers()
@@ -304,6 +329,19 @@ class ResidualConfig:
         if self.release_fit and self.release_blocks is None:
             raise ValueError("ResidualConfig.release_fit needs release_blocks (it sets the value rule 10 judges at; "
                              "with release_blocks None there is no rule 10)")
+        v = self.release_value
+        if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
+            raise ValueError(f"ResidualConfig.release_value must be an integer >= 1 (frames after the release) or None, "
+                             f"not {v!r}")
+        slide = ("linear_damping", "angular_damping", "friction_table", "table_tilt")  # effects.SLIDE_EFFECTS
+        if not (isinstance(self.release_value_effects, tuple) and all(e in slide for e in self.release_value_effects)):
+            raise ValueError(f"ResidualConfig.release_value_effects must be a tuple of slide effects {slide}, "
+                             f"not {self.release_value_effects!r}")
+        if self.release_value_degree not in (2, 3) or isinstance(self.release_value_degree, bool):
+            raise ValueError(f"ResidualConfig.release_value_degree must be 2 or 3, not {self.release_value_degree!r}")
+        if self.release_value_models not in RELEASE_VALUE_MODELS:
+            raise ValueError(f"ResidualConfig.release_value_models must be one of {RELEASE_VALUE_MODELS}, "
+                             f"not {self.release_value_models!r}")
         v = self.restitution_threshold_mps
         if not (isinstance(v, (int, float)) and not isinstance(v, bool) and 0.0 <= v < np.inf):
             raise ValueError(f"ResidualConfig.restitution_threshold_mps must be a number >= 0 m/s, not {v!r}")
