@@ -333,7 +333,8 @@ class ResidualConfig:
         if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
             raise ValueError(f"ResidualConfig.release_value must be an integer >= 1 (frames after the release) or None, "
                              f"not {v!r}")
-        slide = ("linear_damping", "angular_damping", "friction_table", "table_tilt")  # effects.SLIDE_EFFECTS
+        from service.residuals.effects import SLIDE_EFFECTS as slide
+
         if not (isinstance(self.release_value_effects, tuple) and all(e in slide for e in self.release_value_effects)):
             raise ValueError(f"ResidualConfig.release_value_effects must be a tuple of slide effects {slide}, "
                              f"not {self.release_value_effects!r}")
