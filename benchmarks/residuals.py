@@ -809,16 +809,13 @@ def main() -> None:
             ResidualConfig(restitution_threshold_mps=args.restitution_threshold)
         except ValueError as e:
             ap.error(f"--restitution-threshold: {e}")
-    if getattr(args, "restitution_follow_frames", None) not in (None, "off"):
-        try:
-            ResidualConfig(restitution_follow_frames=args.restitution_follow_frames)
-        except ValueError as e:
-            ap.error(f"--restitution-follow-frames: {e}")
-    if getattr(args, "release_blocks", None) not in (None, "off"):
-        try:
-            ResidualConfig(release_blocks=args.release_blocks)
-        except ValueError as e:
-            ap.error(f"--release-blocks: {e}")
+    for field in ("restitution_follow_frames", "release_blocks", "release_value"):  # integer-or-'off' flags
+        v = getattr(args, field, None)
+        if v not in (None, "off"):
+            try:
+                ResidualConfig(**{field: v})
+            except ValueError as e:
+                ap.error(f"--{field.replace('_', '-')}: {e}")
     if getattr(args, "release_fit", None) == "on" and getattr(args, "release_blocks", None) in (None, "off"):
         ap.error("--release-fit on: needs --release-blocks N (rule 10, whose value it sets, is off without it)")
     if getattr(args, "save_outputs", None):  # made (or refused) now, not after the first cell's minutes of work
