@@ -232,18 +232,17 @@ def lookalike_refutation(round_res: list[tuple], folds: list, cfg: ResidualConfi
     return _judge_lookalikes(round_res, final, history, rnd, judge)
 
 
-def release_blocks(fd, cfg: ResidualConfig, train: bool = False, gap: int | None = None) -> list:
-    """The release blocks (``loop.release_segment``, ``gap`` frames after the release; None: ``cfg.release_blocks``)
-    of fold ``fd``'s held-out launch blocks (``train``: of its training launch blocks), with the fold's modes; cut
-    once per fold and gap and kept on it."""
+def release_blocks(fd, cfg: ResidualConfig, train: bool = False) -> list:
+    """The release blocks (``loop.release_segment``, ``cfg.release_blocks`` frames after the release) of fold ``fd``'s
+    held-out launch blocks (``train``: of its training launch blocks), with the fold's modes; cut once per fold and
+    kept on it."""
     from service.residuals.loop import release_segment
 
-    gap = cfg.release_blocks if gap is None else gap
     if fd.release is None:
         fd.release = {}
-    key = ("train" if train else "held") if gap == cfg.release_blocks else ("train" if train else "held", gap)
+    key = "train" if train else "held"
     if key not in fd.release:
-        fd.release[key] = [r for r in (release_segment(sg, gap, cfg)
+        fd.release[key] = [r for r in (release_segment(sg, cfg.release_blocks, cfg)
                                        for sg in (fd.train if train else fd.held)) if r is not None]
     return fd.release[key]
 
@@ -299,7 +298,7 @@ def release_value_folds(eff, per: list, folds: list, input_model: ObjectModel, i
             "launch_value_kept": kept, "heldout_acting_after": float(np.nanmean(acting)) if len(acting) else float("nan")}
 
 
-def release_value(eff, fd, cfg: ResidualConfig, ev, guess) -> tuple:
+def release_fit_value(eff, fd, cfg: ResidualConfig, ev, guess) -> tuple:
     """``ResidualConfig.release_fit``: the effect's value fitted on fold ``fd``'s training release blocks alone (from
     the fold's current model: its corrections and accepted effects; ``loop._fit`` on the effect's frames of those
     blocks), or None with fewer than 2 such blocks."""
@@ -332,7 +331,7 @@ def release_rule(ok: bool, why: str, eff, per: list, folds: list, cur: list, ev,
         cm, cs = cur[f]
         m_after, e_after = per[f]["after_model"]
         if cfg.release_fit:
-            theta = release_value(eff, fd, cfg, ev, per[f]["theta"])
+            theta = release_fit_value(eff, fd, cfg, ev, per[f]["theta"])
             if theta is None:
                 continue
             vals.append(theta)
