@@ -714,20 +714,22 @@ def kappa_sep_axis(Q: np.ndarray, N: np.ndarray, ratio: float, arc_tau: float, m
     (comment above): True with the weakest eigen-direction's axis when it is mostly a rotation, κ₁ < ``arc_tau``,
     its radius profile fits within ``max_rms`` (m) and the next weakest direction that is mostly a rotation has
     κ ≥ ``ratio`` · κ₁ (none: refused). ``ratio`` ≤ 0 or ``arc_tau`` ≤ 0: always refused (the option off)."""
-    no = (False, 1.0, np.zeros(3), np.zeros(3))
+    def refused(lam1: float) -> tuple[bool, float, np.ndarray, np.ndarray]:
+        return False, lam1, np.zeros(3), np.zeros(3)
+
     if ratio <= 0 or arc_tau <= 0 or len(Q) < 20:
-        return no
+        return refused(1.0)
     lam, U, Di, ctr = _screw_eig(Q, N)
     lam = lam / len(Q)
     rot = np.sum(U[:3] ** 2, 0) > 0.5
     if not rot[0]:
-        return (False, float(lam[0]), np.zeros(3), np.zeros(3))
+        return refused(float(lam[0]))
     a, c = _screw_axis(U[:, 0], Di, ctr)
     k1 = arc_score(Q, N, a, c)
     nxt = [k for k in range(1, len(lam)) if rot[k]]
     if k1 >= arc_tau or not nxt:
-        return (False, float(lam[0]), np.zeros(3), np.zeros(3))
+        return refused(float(lam[0]))
     a2, c2 = _screw_axis(U[:, nxt[0]], Di, ctr)
     if arc_score(Q, N, a2, c2) < ratio * k1 or profile_axis(Q, a, c)[2] > max_rms:
-        return (False, float(lam[0]), np.zeros(3), np.zeros(3))
+        return refused(float(lam[0]))
     return True, float(lam[0]), a, c
