@@ -514,6 +514,8 @@ def strike(args) -> None:
         if args.lab_strike_contact == "velocity":  # and no push-out of its overlap (docs/residuals-findings.md, "The launch kick")
             lab_sim.STRIKE_CONTACT_STIFFNESS_DAMPING = lab_sim.STRIKE_VELOCITY_ONLY
     n_ok = n = n_off_ok = 0
+    # release_value on in this run (the flag, or absent: the config's default): each line also gives off's outcome
+    rv_on = (ResidualConfig().release_value is not None) if args.release_value is None else args.release_value != "off"
     for case in args.cases:
         hidden, name, key, truth, cands = STRIKE_CASES[case]
         if args.candidates:  # the same sessions against another candidate set (e.g. with friction_robot among them)
@@ -615,7 +617,7 @@ def strike(args) -> None:
                     rf = ", ".join(f"{float(list(v.values())[0]):.4g}" for v in lv.get("release_folds", []))
                     fm_txt += (f" [release value: folds ({rf}), {lv.get('release_blocks', '?')} release blocks; "
                                f"launch-block refit {l_fv:.4g} (error {l_rel:.0%}), {l_r:.3f}x: off {'PASS' if l_ok else 'FAIL'}]")
-                elif args.release_value not in (None, "off"):
+                elif rv_on:
                     n_off_ok += ok
                 line += (f"; true {truth}, fitted {fs} (error {rel:.0%}){fm_txt}; "
                          + (_acting_txt(c) if np.isfinite(c.heldout_acting_before) else "its frames not judged")
@@ -631,7 +633,7 @@ def strike(args) -> None:
                      f"{resource.getrusage(resource.RUSAGE_SELF).ru_utime - c0:.0f} s cpu)")
             n += 1
             n_ok += ok
-            if args.release_value not in (None, "off") and not (name and not as_correction):
+            if rv_on and not (name and not as_correction):
                 n_off_ok += ok  # no slide-effect value to change: off's outcome is the same
             print(line, flush=True)
             if args.folds >= 2:
@@ -644,10 +646,12 @@ def strike(args) -> None:
         return
     print(f"strike cases passing the issue #6 criteria (right effect alone, within 25 %, held-out error where it acts "
           f"<= 0.6x; plain: nothing): {n_ok}/{n}"
-          + (f" (with the launch-block values, release value off: {n_off_ok}/{n})" if args.release_value not in (None, "off") else ""))
+          + (f" (with the launch-block values, release value off: {n_off_ok}/{n})" if rv_on else ""))
 
 
 def main() -> None:
+    from service.residuals.effects import SLIDE_EFFECTS
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     r = sub.add_parser("real")
@@ -731,13 +735,14 @@ def main() -> None:
                          "absent: the config's default, off)")
     st.add_argument("--release-value", type=_int_or_off, default=None, metavar="N",
                     help="ResidualConfig.release_value: an accepted slide effect's reported value fitted on the release "
-                         "blocks N frames after the release; the line also gives the launch-block value (off's) from the same run")
+                         "blocks N frames after the release; the line also gives the launch-block value (off's) from the "
+                         "same run ('off': the launch-block value; absent: the config's default, 1)")
     st.add_argument("--release-value-models", choices=("learned", "all"), default=None,
                     help="ResidualConfig.release_value_models: the models --release-value acts on")
     st.add_argument("--release-value-degree", type=int, choices=(2, 3), default=None,
                     help="ResidualConfig.release_value_degree: the release blocks' start-state polynomial (3: cubic)")
     st.add_argument("--release-value-effects", nargs="+", default=None, metavar="EFFECT",
-                    choices=("linear_damping", "angular_damping", "friction_table", "table_tilt"),
+                    choices=SLIDE_EFFECTS,
                     help="ResidualConfig.release_value_effects: the slide effects --release-value acts on")
     st.add_argument("--release-fit", choices=("on", "off"), default=None,
                     help="ResidualConfig.release_fit: rule 10 at the value fitted on the training release blocks")
