@@ -92,13 +92,15 @@ def runtime_versions() -> dict[str, str]:
     return {"python": platform.python_version(), **{p: version(p) for p in RUNTIME_PACKAGES}}
 
 
-def _hash_files(files: list[Path], base: Path) -> str:
-    """sha256 of the files (their paths under ``base`` and contents) and of :func:`runtime_versions`."""
+def _hash_files(files: list[Path] | tuple[Path, ...], base: Path, *, runtime: bool = True) -> str:
+    """sha256 of the files (their paths under ``base``, or their names outside it, and contents) and, with
+    ``runtime``, of :func:`runtime_versions`."""
     h = hashlib.sha256()
     for f in sorted(files):
-        h.update(f.relative_to(base).as_posix().encode() + b"\0")
+        h.update((f.relative_to(base).as_posix() if f.is_relative_to(base) else f.name).encode() + b"\0")
         h.update(hashlib.sha256(f.read_bytes()).digest())
-    h.update(json.dumps(runtime_versions(), sort_keys=True).encode())
+    if runtime:
+        h.update(json.dumps(runtime_versions(), sort_keys=True).encode())
     return h.hexdigest()
 
 
@@ -186,13 +188,8 @@ def module_code_version(module: str, service_dir: Path = SERVICE_DIR) -> str:
     spec = importlib.util.find_spec(module)
     if spec is None or not spec.origin:
         raise ValueError(f"module {module!r} not found")
-    files = _closure([(Path(spec.origin), module)], service_dir)
-    base = service_dir.parent
-    h = hashlib.sha256()
-    for f in sorted(files):
-        h.update((f.relative_to(base).as_posix() if f.is_relative_to(base) else f.name).encode() + b"\0")
-        h.update(hashlib.sha256(f.read_bytes()).digest())
-    return h.hexdigest()
+    # the runtime is in the stage code versions already: a wiring input need not carry it again
+    return _hash_files(_closure([(Path(spec.origin), module)], service_dir), service_dir.parent, runtime=False)
 
 
 @lru_cache(maxsize=None)
