@@ -84,7 +84,9 @@ class TrackingConfig:
     # fewer than feat_min_inliers. Development eggs: of the 1 cm consensus's inliers in a roll 38 % do not
     # follow the surface (keypoints 2-8 px from where it moved them, within 1 cm: 7.7 px at 0.8 m across the ray).
     # Off: 2 px gained on 18 of 22 development eggs and on 704, 710, 711, and lost on the evaluation 703 and 707
-    # (docs/tracking-findings.md, "Eggs: why the loop's increment in a roll is short")
+    # (docs/tracking-findings.md, "Eggs: why the loop's increment in a roll is short"). Re-judged with the defaults of
+    # 9c88efd on fresh 1950-1973: pose targets met 11 -> 11 of 24, rotation medians lower on 12, worst rotation higher
+    # on 9, median translation median 1.22 -> 1.39 mm: off ("The camera consensus ... re-judged on the main of 23 Nov")
     track_ransac_px: float | None = None
     min_inlier_frac: float = 0.35  # below: lost track
     max_rmse: float = 0.006  # above: lost track
