@@ -442,7 +442,9 @@ class TrackingConfig:
     # the tilt closure's correction kept only near the frames it measured: a frame d frames from the nearest one keeps
     # max(0, 1 - d/spin_tilt_reach) of it, beyond that the loop's own pose (tilt.reach_weights); 0: off, the correction
     # interpolated between measured frames and held at the ends (the earlier outputs, bit for bit). A companion of
-    # track_ransac_px (docs/tracking-findings.md "Eggs with the camera consensus: what the later stages do")
+    # track_ransac_px (docs/tracking-findings.md "Eggs with the camera consensus: what the later stages do"): 15 with
+    # px 2 on development eggs 1361 25.50 -> 22.63, 1362 18.40 -> 10.65 deg median, 1371 34.06 -> 35.46; judge (fresh
+    # eggs 1980-1985, bottle topples 1992-1993): gains on 1 of 6 eggs, 1983's worst frame +0.57 deg: off
     spin_tilt_reach: int = 0
     # the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass):
     # the face of the pre-fall model that lies on the table at the settled frame (resettle.landed_face) is laid flush
