@@ -93,13 +93,15 @@ def tilt_step(pO: np.ndarray, qO: np.ndarray, o: np.ndarray, E: np.ndarray, hube
 def tilt_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.ndarray, Q: np.ndarray, a: np.ndarray,
                  c: np.ndarray, *, match, voted: np.ndarray | None = None, tol: float = 0.006, huber: float = 0.002,
                  min_votes: int = 8, min_cond: float = 0.05, n_recent: int = 3, n_spread: int = 8, smooth: int = 5,
-                 max_deg: float = 30.0) -> TiltResult:
+                 max_deg: float = 30.0, reach: int = 0) -> TiltResult:
     """Tilt correction ω (N,3) of the poses X_WO (N,4,4) (already spin-corrected) of an egg-like body with symmetry
     axis (a, c) in O (module docstring), from each frame's interior features ``feats[i] = (points (F,3) in W,
     descriptors or None)``; X_WO is not changed (apply with ``apply_tilt``). Q (M,3): the model in O (for the
     centre). ``match(desc_a, desc_b) -> (M,2)``. ``voted`` (N,) bool: only these frames are estimated (the frames
     whose spin the texture measured: where the spin is interpolated, its error enters the matches and, through an
-    axis a few degrees off, the fitted tilt); the others interpolate."""
+    axis a few degrees off, the fitted tilt); the others interpolate. ``reach`` > 0: a frame d frames from the nearest
+    estimated frame keeps max(0, 1 − d/reach) of its interpolated correction (``reach_weights``): beyond that the
+    loop's own pose is kept, not a correction measured elsewhere (0: interpolated and held at the ends everywhere)."""
     from service.tracking.spin import anchor_candidates, plane_basis
 
     n = len(X_WO)
@@ -156,7 +158,24 @@ def tilt_closure(feats: list[tuple[np.ndarray, np.ndarray | None]], X_WO: np.nda
     omega = full @ E.T
     if max_deg > 0 and np.max(np.linalg.norm(omega, axis=1)) > np.radians(max_deg):
         return TiltResult(False, np.zeros((n, 3)), o, votes, rejected=True)
+    if reach > 0:
+        omega = omega * reach_weights(votes > 0, reach)[:, None]
     return TiltResult(True, omega, o, votes)
+
+
+def reach_weights(voted: np.ndarray, reach: int) -> np.ndarray:
+    """(N,) weights max(0, 1 − d/reach), d the distance (frames) of each frame from the nearest True of ``voted``
+    (N,) bool; frame 0 (the gauge, correction 0) does not count as one. All zeros when nothing is voted."""
+    n = len(voted)
+    idx = np.nonzero(voted)[0]
+    idx = idx[idx > 0]
+    if len(idx) == 0:
+        return np.zeros(n)
+    k = np.arange(n)
+    pos = np.searchsorted(idx, k)
+    left, right = idx[np.clip(pos - 1, 0, len(idx) - 1)], idx[np.clip(pos, 0, len(idx) - 1)]
+    d = np.minimum(np.abs(k - left), np.abs(k - right))
+    return np.clip(1.0 - d / float(reach), 0.0, 1.0)
 
 
 def apply_tilt(X_WO: np.ndarray, res: TiltResult) -> np.ndarray:

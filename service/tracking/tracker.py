@@ -1211,7 +1211,8 @@ def _spin_tilt(obs: list[FrameObs], X: np.ndarray, model: ObjectModel, spin: "Sp
     empty = (np.zeros((0, 3)), None)
     feats = [o.spin_feats if o.spin_feats is not None and len(o.P_W) >= cfg.min_points else empty for o in obs]
     res = tilt_closure(feats, X, model.Q, spin.axis_O, spin.point_O, match=_match, voted=spin.votes > 0,
-                       tol=cfg.spin_tol, min_votes=cfg.spin_min_votes, smooth=cfg.spin_smooth)
+                       tol=cfg.spin_tol, min_votes=cfg.spin_min_votes, smooth=cfg.spin_smooth,
+                       reach=cfg.spin_tilt_reach)
     X[:] = apply_tilt(X, res)
     return res
 

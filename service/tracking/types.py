@@ -440,7 +440,15 @@ class TrackingConfig:
     spin_tilt: bool = True  # development eggs 512 7.31 -> 5.54 deg median, 922 17.05 -> 14.39, 924 3.23 -> 1.54
     # (re-measured on the later development eggs: acts on 9 fresh ones, off gains on 3, loses on 2, mixed on 3, level on
     # 1; off gains on 1361, 1362, 1370: kept on; docs/tracking-findings.md "Does the tilt closure still earn its
-    # place?") the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass):
+    # place?")
+    # the tilt closure's correction kept only near the frames it measured: a frame d frames from the nearest one keeps
+    # max(0, 1 - d/spin_tilt_reach) of it, beyond that the loop's own pose (tilt.reach_weights); 0: off, the correction
+    # interpolated between measured frames and held at the ends (the earlier outputs, bit for bit). A companion of
+    # track_ransac_px (docs/tracking-findings.md "Eggs with the camera consensus: what the later stages do"): 15 with
+    # px 2 on development eggs 1361 25.50 -> 22.63, 1362 18.40 -> 10.65 deg median, 1371 34.06 -> 35.46; judge (fresh
+    # eggs 1980-1985, bottle topples 1992-1993): gains on 1 of 6 eggs, 1983's worst frame +0.57 deg: off
+    spin_tilt_reach: int = 0
+    # the settled stretch after every topple landing checked (tracker._resettle_flush; after the final pass):
     # the face of the pre-fall model that lies on the table at the settled frame (resettle.landed_face) is laid flush
     # with the table in every frame of the stretch whose pose has it within resettle_flush_deg of flat
     # (resettle.flush_pose: an object at rest on a face has it on the table; two tilts and the height), the stretch's
@@ -507,6 +515,9 @@ class TrackingConfig:
                 and self.icp_dist_min <= self.refine_slow_dist0 < float("inf")):
             raise ValueError(f"TrackingConfig.refine_slow_dist0 must be finite and >= icp_dist_min = "
                              f"{self.icp_dist_min} (m), not {self.refine_slow_dist0!r}")
+        if not (isinstance(self.spin_tilt_reach, int) and not isinstance(self.spin_tilt_reach, bool)
+                and self.spin_tilt_reach >= 0):
+            raise ValueError(f"TrackingConfig.spin_tilt_reach must be an int >= 0 (frames), not {self.spin_tilt_reach!r}")
         for name in ("spin_features", "spin_min_votes", "spin_smooth"):
             if not getattr(self, name) >= 1:
                 raise ValueError(f"TrackingConfig.{name} must be >= 1, not {getattr(self, name)!r}")
