@@ -544,6 +544,8 @@ def strike(args) -> None:
                                          else {"release_value": None if args.release_value == "off" else args.release_value}),
                                       **({} if args.release_value_models is None
                                          else {"release_value_models": args.release_value_models}),
+                                      **({} if args.release_blocks_degree is None
+                                         else {"release_blocks_degree": args.release_blocks_degree}),
                                       **({} if args.release_value_degree is None
                                          else {"release_value_degree": args.release_value_degree}),
                                       **({} if args.release_value_effects is None
@@ -744,6 +746,8 @@ def main() -> None:
     st.add_argument("--release-value-effects", nargs="+", default=None, metavar="EFFECT",
                     choices=SLIDE_EFFECTS,
                     help="ResidualConfig.release_value_effects: the slide effects --release-value acts on")
+    st.add_argument("--release-blocks-degree", type=int, choices=(2, 3), default=None,
+                    help="ResidualConfig.release_blocks_degree: rule 10's release-block start-state polynomial (3: cubic)")
     st.add_argument("--release-fit", choices=("on", "off"), default=None,
                     help="ResidualConfig.release_fit: rule 10 at the value fitted on the training release blocks")
     st.add_argument("--nuisance-segments", type=int, default=None, metavar="N",
@@ -821,6 +825,8 @@ def main() -> None:
                 ResidualConfig(**{field: v})
             except ValueError as e:
                 ap.error(f"--{field.replace('_', '-')}: {e}")
+    if getattr(args, "release_blocks_degree", None) is not None and getattr(args, "release_blocks", None) in (None, "off"):
+        ap.error("--release-blocks-degree: needs --release-blocks N (rule 10's release blocks, not cut without it)")
     if getattr(args, "release_fit", None) == "on" and getattr(args, "release_blocks", None) in (None, "off"):
         ap.error("--release-fit on: needs --release-blocks N (rule 10, whose value it sets, is off without it)")
     if getattr(args, "save_outputs", None):  # made (or refused) now, not after the first cell's minutes of work

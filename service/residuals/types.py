@@ -258,6 +258,11 @@ class ResidualConfig:
     # with release blocks on: the effect's value for rule 10 fitted on each fold's training release blocks alone (the
     # launch blocks' θ_f carries what the effect took up of the struck size); the accepted value is not changed
     release_fit: bool = False
+    # the degree of the model-free start state of rule 10's release blocks (held-out and, with ``release_fit``,
+    # training; ``loop.start_state``): 2 (default) = the one-sided quadratic rule 10 was designed and judged with, biased
+    # low by a damped slide's jerk; 3 = the cubic (>= 6 frames) of ``release_value_degree`` (docs/residuals-findings.md,
+    # "Rule 10 with the cubic start")
+    release_blocks_degree: int = 2
     # the reported value of an accepted slide effect fitted on the slide alone (docs/residuals.md §4 "Reported value";
     # docs/residuals-findings.md, "The reported value from the slide alone"): None = off; N (default 1: on by the
     # rule written before the judge seeds 841-844, where 2 of 4 learned damping cells met issue #6's criteria with it
@@ -338,8 +343,10 @@ class ResidualConfig:
         if not (isinstance(self.release_value_effects, tuple) and all(e in slide for e in self.release_value_effects)):
             raise ValueError(f"ResidualConfig.release_value_effects must be a tuple of slide effects {slide}, "
                              f"not {self.release_value_effects!r}")
-        if self.release_value_degree not in (2, 3) or isinstance(self.release_value_degree, bool):
-            raise ValueError(f"ResidualConfig.release_value_degree must be 2 or 3, not {self.release_value_degree!r}")
+        for name in ("release_value_degree", "release_blocks_degree"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v not in (2, 3):
+                raise ValueError(f"ResidualConfig.{name} must be 2 or 3, not {v!r}")
         if self.release_value_models not in RELEASE_VALUE_MODELS:
             raise ValueError(f"ResidualConfig.release_value_models must be one of {RELEASE_VALUE_MODELS}, "
                              f"not {self.release_value_models!r}")
