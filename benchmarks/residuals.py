@@ -544,6 +544,8 @@ def strike(args) -> None:
                                          else {"release_value": None if args.release_value == "off" else args.release_value}),
                                       **({} if args.release_value_models is None
                                          else {"release_value_models": args.release_value_models}),
+                                      **({} if args.release_blocks_degree is None
+                                         else {"release_blocks_degree": args.release_blocks_degree}),
                                       **({} if args.release_value_degree is None
                                          else {"release_value_degree": args.release_value_degree}),
                                       **({} if args.release_value_effects is None
@@ -731,8 +733,8 @@ def main() -> None:
                          "§3b; absent: the config's default)")
     st.add_argument("--release-blocks", type=_int_or_off, default=None, metavar="N",
                     help="ResidualConfig.release_blocks: rule 10, a slide effect must also improve the held-out release "
-                         "blocks, started N frames after the sphere stopped pushing (docs/residuals.md §4; 'off' or "
-                         "absent: the config's default, off)")
+                         "blocks, started N frames after the sphere stopped pushing (docs/residuals.md §4; 'off': rule 10 off; "
+                         "absent: the config's default, 1)")
     st.add_argument("--release-value", type=_int_or_off, default=None, metavar="N",
                     help="ResidualConfig.release_value: an accepted slide effect's reported value fitted on the release "
                          "blocks N frames after the release; the line also gives the launch-block value (off's) from the "
@@ -744,8 +746,11 @@ def main() -> None:
     st.add_argument("--release-value-effects", nargs="+", default=None, metavar="EFFECT",
                     choices=SLIDE_EFFECTS,
                     help="ResidualConfig.release_value_effects: the slide effects --release-value acts on")
+    st.add_argument("--release-blocks-degree", type=int, choices=(2, 3), default=None,
+                    help="ResidualConfig.release_blocks_degree: rule 10's release-block start-state polynomial (3: cubic; absent: the config's default, 3)")
     st.add_argument("--release-fit", choices=("on", "off"), default=None,
-                    help="ResidualConfig.release_fit: rule 10 at the value fitted on the training release blocks")
+                    help="ResidualConfig.release_fit: rule 10 at the value fitted on the training release blocks "
+                         "(absent: the config's default, on)")
     st.add_argument("--nuisance-segments", type=int, default=None, metavar="N",
                     help="ResidualConfig.max_nuisance_segments: training blocks of the nuisance fit and the joint refit "
                          "(absent: ResidualConfig.fast()'s 12)")
@@ -821,8 +826,12 @@ def main() -> None:
                 ResidualConfig(**{field: v})
             except ValueError as e:
                 ap.error(f"--{field.replace('_', '-')}: {e}")
-    if getattr(args, "release_fit", None) == "on" and getattr(args, "release_blocks", None) in (None, "off"):
-        ap.error("--release-fit on: needs --release-blocks N (rule 10, whose value it sets, is off without it)")
+    rb = getattr(args, "release_blocks", None)  # rule 10 off in this run: --release-blocks off, or absent and off by default
+    r10_off = rb == "off" or (rb is None and ResidualConfig().release_blocks is None)
+    if getattr(args, "release_blocks_degree", None) is not None and r10_off:
+        ap.error("--release-blocks-degree: rule 10 is off here (--release-blocks off): no release block is cut")
+    if getattr(args, "release_fit", None) == "on" and r10_off:
+        ap.error("--release-fit on: rule 10, whose value it sets, is off here (--release-blocks off)")
     if getattr(args, "save_outputs", None):  # made (or refused) now, not after the first cell's minutes of work
         try:
             Path(args.save_outputs).mkdir(parents=True, exist_ok=True)

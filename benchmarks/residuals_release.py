@@ -8,7 +8,7 @@ of the declared model and of the model with the effect at its true value (no fit
 show). With ``--learned-model`` the model carries the benchmark's learned-model errors (no corrections), and
 ``--value`` sets the effect's value instead of the truth (e.g. a false damping on a plain session).
 
-    python benchmarks/residuals_release.py --seeds 751 752 --case linear_damping [--gap 2] [--learned-model]
+    python benchmarks/residuals_release.py --seeds 751 752 --case linear_damping [--gap 2] [--learned-model] [--degree 3]
 """
 
 from __future__ import annotations
@@ -63,6 +63,8 @@ def main() -> None:
     ap.add_argument("--value", type=float, nargs="+", default=None, help="its value (default: the case's truth)")
     ap.add_argument("--gap", type=int, default=2, help="release block from this many frames after the last robot contact")
     ap.add_argument("--learned-model", action="store_true")
+    ap.add_argument("--degree", type=int, choices=(2, 3), default=2,
+                    help="the release blocks' start-state polynomial (rule 10's release_blocks_degree; 3: cubic)")
     args = ap.parse_args()
     hidden, name, _key, truth, _c = STRIKE_CASES[args.case]
     name = args.effect or name
@@ -89,7 +91,7 @@ def main() -> None:
         inp = ResidualInputs(model, (ls.trajectory,), ls.table_height, robot=(robot,))
         segs = make_segments(inp, [classify(model, ls.trajectory, ls.table_height, robot, cfg)], cfg)
         launch = [s for s in segs if s.launch]
-        rel = [r for r in (release_segment(s, args.gap, cfg) for s in launch) if r is not None]
+        rel = [r for r in (release_segment(s, args.gap, cfg, args.degree) for s in launch) if r is not None]
         sim = simulator_for(cfg)
         try:
             ev = Evaluator(sim, ls.table_height, object_radius(model))

@@ -233,16 +233,16 @@ def lookalike_refutation(round_res: list[tuple], folds: list, cfg: ResidualConfi
 
 
 def release_blocks(fd, cfg: ResidualConfig, train: bool = False) -> list:
-    """The release blocks (``loop.release_segment``, ``cfg.release_blocks`` frames after the release) of fold ``fd``'s
-    held-out launch blocks (``train``: of its training launch blocks), with the fold's modes; cut once per fold and
-    kept on it."""
+    """The release blocks (``loop.release_segment``, ``cfg.release_blocks`` frames after the release, the start state's
+    polynomial of degree ``cfg.release_blocks_degree``) of fold ``fd``'s held-out launch blocks (``train``: of its
+    training launch blocks), with the fold's modes; cut once per fold and kept on it."""
     from service.residuals.loop import release_segment
 
     if fd.release is None:
         fd.release = {}
     key = "train" if train else "held"
     if key not in fd.release:
-        fd.release[key] = [r for r in (release_segment(sg, cfg.release_blocks, cfg)
+        fd.release[key] = [r for r in (release_segment(sg, cfg.release_blocks, cfg, cfg.release_blocks_degree)
                                        for sg in (fd.train if train else fd.held)) if r is not None]
     return fd.release[key]
 

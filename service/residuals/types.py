@@ -250,14 +250,23 @@ class ResidualConfig:
     # the struck size can no longer act. A slide effect (``effects.SLIDE_EFFECTS``: linear and angular damping, table
     # friction, tilt) that passes rules 1-8 is refused when, over the held-out release blocks of every fold where it
     # acts (>= ``release_min_blocks`` of them), its error component does not fall on average and on more blocks than
-    # it rises (ties as rule 3's). Off leaves every output as before. Off by default: on the judge seeds 831-840 it
-    # removed one false acceptance (a damping on plain learned 835) and lost one right damping (838, fitted 97 % high;
-    # docs/residuals-findings.md, "Release blocks")
-    release_blocks: int | None = None
+    # it rises (ties as rule 3's). None leaves every output as before. On by default (1, with ``release_fit`` and the
+    # cubic start, ``release_blocks_degree`` 3) by the rule written before the judge seeds 845-847, where it refused
+    # nothing on any of the 8 cells (no false positive, no right effect lost, the catalogue unchanged); with the
+    # quadratic it had removed the false dampings of plain learned 813, 814, 818 and 835 and lost 838's right damping
+    # (judge seeds 831-840), which the cubic keeps (docs/residuals-findings.md, "Release blocks", "Rule 10 with the
+    # cubic start")
+    release_blocks: int | None = 1
     release_min_blocks: int = 3
     # with release blocks on: the effect's value for rule 10 fitted on each fold's training release blocks alone (the
-    # launch blocks' θ_f carries what the effect took up of the struck size); the accepted value is not changed
-    release_fit: bool = False
+    # launch blocks' θ_f carries what the effect took up of the struck size); the accepted value is not changed. On by
+    # default with rule 10; ignored when ``release_blocks`` is None
+    release_fit: bool = True
+    # the degree of the model-free start state of rule 10's release blocks (held-out and, with ``release_fit``,
+    # training; ``loop.start_state``): 2 = the one-sided quadratic rule 10 was designed and first judged with (judge
+    # seeds 831-840), biased low by a damped slide's jerk; 3 (default) = the cubic (>= 6 frames) of
+    # ``release_value_degree`` (docs/residuals-findings.md, "Rule 10 with the cubic start")
+    release_blocks_degree: int = 3
     # the reported value of an accepted slide effect fitted on the slide alone (docs/residuals.md §4 "Reported value";
     # docs/residuals-findings.md, "The reported value from the slide alone"): None = off; N (default 1: on by the
     # rule written before the judge seeds 841-844, where 2 of 4 learned damping cells met issue #6's criteria with it
@@ -326,9 +335,6 @@ class ResidualConfig:
             raise ValueError(f"ResidualConfig.release_min_blocks must be an integer >= 1, not {v!r}")
         if not isinstance(self.release_fit, bool):
             raise ValueError(f"ResidualConfig.release_fit must be a bool, not {self.release_fit!r}")
-        if self.release_fit and self.release_blocks is None:
-            raise ValueError("ResidualConfig.release_fit needs release_blocks (it sets the value rule 10 judges at; "
-                             "with release_blocks None there is no rule 10)")
         v = self.release_value
         if v is not None and not (isinstance(v, int) and not isinstance(v, bool) and v >= 1):
             raise ValueError(f"ResidualConfig.release_value must be an integer >= 1 (frames after the release) or None, "
@@ -338,8 +344,10 @@ class ResidualConfig:
         if not (isinstance(self.release_value_effects, tuple) and all(e in slide for e in self.release_value_effects)):
             raise ValueError(f"ResidualConfig.release_value_effects must be a tuple of slide effects {slide}, "
                              f"not {self.release_value_effects!r}")
-        if self.release_value_degree not in (2, 3) or isinstance(self.release_value_degree, bool):
-            raise ValueError(f"ResidualConfig.release_value_degree must be 2 or 3, not {self.release_value_degree!r}")
+        for name in ("release_value_degree", "release_blocks_degree"):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v not in (2, 3):
+                raise ValueError(f"ResidualConfig.{name} must be 2 or 3, not {v!r}")
         if self.release_value_models not in RELEASE_VALUE_MODELS:
             raise ValueError(f"ResidualConfig.release_value_models must be one of {RELEASE_VALUE_MODELS}, "
                              f"not {self.release_value_models!r}")

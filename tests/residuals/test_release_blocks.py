@@ -98,7 +98,7 @@ def test_release_rule_refuses_an_effect_that_does_not_improve_the_slide_alone(af
     before = {"cur0": (2.0, 2.0), "cur1": (2.0, 2.0), "after0": after[:2], "after1": after[2:]}
     per = [{"after_model": ("after0", {})}, {"after_model": ("after1", {})}]
     cur = [("cur0", {}), ("cur1", {})]
-    cfg = ResidualConfig(release_blocks=1)
+    cfg = ResidualConfig(release_blocks=1, release_fit=False)  # at the launch blocks' θ_f (the _Ev stand-in)
     ok, why = release_rule(True, "passes; held-out error +20%", eff, per, folds, cur, _Ev(before), cfg)
     assert ok is passes
     assert "release blocks (position)" in why
@@ -112,12 +112,14 @@ def test_release_rule_does_not_judge_on_too_few_blocks():
     folds = [_fold(1), _fold(1)]
     err = {"c": (2.0,), "a": (5.0,)}
     ok, why = release_rule(True, "passes", eff, [{"after_model": ("a", {})}] * 2, folds, [("c", {})] * 2, _Ev(err),
-                           ResidualConfig(release_blocks=1, release_min_blocks=3))
+                           ResidualConfig(release_blocks=1, release_min_blocks=3, release_fit=False))
     assert ok and "2, too few to judge" in why
 
 
 def test_config_release_blocks():
-    assert ResidualConfig().release_blocks is None  # off by default
+    cfg = ResidualConfig()  # on by default: 1 frame after the release, at the release-fitted value, the cubic start
+    assert (cfg.release_blocks, cfg.release_fit, cfg.release_blocks_degree) == (1, True, 3)
+    assert ResidualConfig(release_blocks=None).release_blocks is None  # off (release_fit then does nothing)
     assert ResidualConfig(release_blocks=2).release_blocks == 2
     for v in (0, -1, 1.5, True, "1"):
         with pytest.raises(ValueError, match="release_blocks"):
@@ -125,6 +127,48 @@ def test_config_release_blocks():
     for v in (0, 2.0, False):
         with pytest.raises(ValueError, match="release_min_blocks"):
             ResidualConfig(release_min_blocks=v)
-    assert ResidualConfig(release_blocks=1, release_fit=True).release_fit
-    with pytest.raises(ValueError, match="release_fit needs release_blocks"):
-        ResidualConfig(release_fit=True)  # no rule 10 to set the value of
+    assert not ResidualConfig(release_blocks=1, release_fit=False).release_fit
+    for v in (1, "on", None):
+        with pytest.raises(ValueError, match="release_fit must be a bool"):
+            ResidualConfig(release_fit=v)
+
+
+def _damped_launch_block(b: float = 2.0, v_rel: float = 0.45) -> Segment:
+    """``_launch_block``'s strike, then a slide under friction and a viscous damping b (1/s): dv/dt = −μg − b v, whose
+    deceleration falls as the box slows (the jerk that biases a one-sided quadratic's velocity low)."""
+    seg = _launch_block(n_push=2, n_label=5, v_rel=v_rel)
+    r0, mug = 4, A_SLIDE
+    tau = seg.t[r0:] - seg.t[r0]
+    t_stop = np.log1p(b * v_rel / mug) / b
+    tt = np.minimum(tau, t_stop)
+    x = seg.X_obs[r0, 0, 3] + ((v_rel + mug / b) * (1.0 - np.exp(-b * tt)) - mug * tt) / b
+    X = seg.X_obs.copy()
+    X[r0:, 0, 3] = x
+    mode = np.where(seg.mode == REST, SLIDING, seg.mode)
+    mode[:3] = REST
+    mode[r0 + int(np.ceil(t_stop / H)):] = REST  # stopped
+    return dataclasses.replace(seg, X_obs=X, mode=mode)
+
+
+def test_release_blocks_degree_sets_rule_10s_start_state():
+    from service.residuals.crossfit import release_blocks
+
+    seg = _damped_launch_block()
+    b, mug, v_rel = 2.0, A_SLIDE, 0.45
+    cfg2 = ResidualConfig(release_blocks=1, release_blocks_degree=2)
+    cfg3 = ResidualConfig(release_blocks=1)  # the cubic by default
+    fold = lambda: type("F", (), {"release": None, "held": [seg], "train": [seg, seg]})()  # noqa: E731
+    f2, f3 = fold(), fold()
+    r2, r3 = release_blocks(f2, cfg2)[0], release_blocks(f3, cfg3)[0]
+    assert len(release_blocks(f3, cfg3, train=True)) == 2
+    assert np.allclose(r2.v0, release_segment(seg, 1, cfg2, 2).v0) and np.allclose(r3.v0, release_segment(seg, 1, cfg2, 3).v0)
+    # the box's velocity at the release block's first frame (one frame into the slide), the derivative at −h/2
+    s = H
+    v = (v_rel + mug / b) * np.exp(-b * s) - mug / b
+    h = H / np.ceil(H / cfg2.sim_substep_s - 1e-9)
+    v_true = v + 0.5 * h * (mug + b * v)
+    assert r2.v0[0] < v_true - 0.01  # the quadratic: low by the jerk
+    assert r3.v0[0] == pytest.approx(v_true, abs=3e-3)  # the cubic: not
+    for v in (1, 4, True, 2.0):
+        with pytest.raises(ValueError, match="release_blocks_degree"):
+            ResidualConfig(release_blocks=1, release_blocks_degree=v)
