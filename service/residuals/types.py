@@ -253,8 +253,8 @@ class ResidualConfig:
     # it rises (ties as rule 3's). None leaves every output as before. On by default (1, with ``release_fit`` and the
     # cubic start, ``release_blocks_degree`` 3) by the rule written before the judge seeds 845-847, where it refused
     # nothing on any of the 8 cells (no false positive, no right effect lost, the catalogue unchanged); with the
-    # quadratic it had removed the false dampings of plain learned 813, 814, 818 and 835 and lost 838's right damping
-    # (judge seeds 831-840), which the cubic keeps (docs/residuals-findings.md, "Release blocks", "Rule 10 with the
+    # quadratic it had removed the false dampings of plain learned 813, 814, 818 (findings EK) and, on the judge seeds
+    # 831-840, of 835, and lost 838's right damping there, which the cubic keeps (docs/residuals-findings.md, "Release blocks", "Rule 10 with the
     # cubic start")
     release_blocks: int | None = 1
     release_min_blocks: int = 3
